@@ -1,0 +1,11 @@
+"""The deformation core: every method binds once to a rest pose and compiles to one
+:class:`LinearDeformer` (``positions = rest + W @ handle offsets``)."""
+
+from .base import LinearDeformer
+from .gde import BoundElement, GeometryDeformationElement, bind_element, bind_gdes
+from .rbf import KERNELS, RadialBasis, bind_rbf
+
+__all__ = [
+    "LinearDeformer", "RadialBasis", "bind_rbf", "KERNELS",
+    "GeometryDeformationElement", "BoundElement", "bind_element", "bind_gdes",
+]

@@ -1,0 +1,238 @@
+"""Radial basis function deformation (Noh, Fidaleo & Neumann 2000, section 2.4).
+
+A handle set ``x_i`` (the paper's feature points) with offsets ``d_i`` defines the displacement
+field
+
+    F(x) = sum_i c_i h(||x - x_i||, s_i)  [+ p(x), a polynomial of degree <= 1]      (eq. 1)
+
+whose coefficients solve ``(H + lambda I) c = d`` (eq. 5, Tikhonov smoothing; lambda = 0 gives
+the exact interpolation of eq. 4). The matrix is LU-factored once when the system is bound;
+afterwards the map from handle offsets to the displacement of any point is one matrix ``W``,
+so evaluating a frame is a product (``LinearDeformer``).
+
+Kernels (``r`` distance, ``s`` stiffness of the centre):
+
+- ``multiquadric``: Hardy's ``h = sqrt(r^2 + s^2)`` (eq. 2), no polynomial by default;
+- ``gaussian``: ``h = exp(-(r / s)^2)``, no polynomial by default;
+- ``thin_plate_spline``: ``h = r^2 log r`` with its affine part (degree 1), scale free.
+
+The stiffness defaults to the paper's eq. 3, ``s_i = min_{j != i} ||x_j - x_i||``: soft where
+handles are scattered, stiff where they crowd. A number gives every centre the same stiffness
+(in mesh units), which makes the kernels coincide with ``scipy.interpolate.RBFInterpolator``'s
+``multiquadric`` / ``gaussian`` with ``epsilon = 1 / s``.
+
+Coordinates are measured in units of the handles' bounding-box diagonal before the solve, so
+``smoothing`` means the same on a face modelled in millimetres or in metres.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import scipy.linalg as la
+from scipy.spatial import cKDTree
+
+from ..errors import DeformError
+from .base import LinearDeformer
+
+KERNELS = ("multiquadric", "gaussian", "thin_plate_spline")
+DEFAULT_DEGREE = {"multiquadric": -1, "gaussian": -1, "thin_plate_spline": 1}
+MIN_DEGREE = {"multiquadric": -1, "gaussian": -1, "thin_plate_spline": 1}
+DEFAULT_SMOOTHING = 0.01  # the paper's lambda, "determined experimentally"
+
+_EVAL_CHUNK = 65536  # points per block when evaluating the basis on many points
+
+
+def check_points(points, name: str, min_count: int = 1) -> np.ndarray:
+    """Validate an (N, 3) array of finite points, naming ``name`` in the error."""
+    try:
+        p = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DeformError(f"{name} must be an array of 3-D points") from None
+    if p.ndim == 1 and p.size == 3:
+        p = p[None]
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise DeformError(f"{name} must have shape (N, 3), got {p.shape}")
+    if p.shape[0] < min_count:
+        raise DeformError(f"{name} needs at least {min_count} point(s), got {p.shape[0]}")
+    bad = ~np.all(np.isfinite(p), axis=1)
+    if bad.any():
+        idx = np.flatnonzero(bad)
+        raise DeformError(
+            f"{name} contain NaN or infinite coordinates at index {', '.join(map(str, idx[:5]))}"
+            + (" ..." if idx.size > 5 else "")
+        )
+    return p
+
+
+def _kernel(kernel: str, r: np.ndarray, s: np.ndarray | None) -> np.ndarray:
+    if kernel == "multiquadric":
+        return np.sqrt(r * r + s * s)
+    if kernel == "gaussian":
+        return np.exp(-((r / s) ** 2))
+    if kernel == "thin_plate_spline":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = r * r * np.log(r)
+        out[r == 0] = 0.0
+        return out
+    raise DeformError(f"unknown kernel '{kernel}'; choose one of: {', '.join(KERNELS)}")
+
+
+def _polynomial(x: np.ndarray, degree: int) -> np.ndarray:
+    if degree < 0:
+        return np.empty((x.shape[0], 0))
+    if degree == 0:
+        return np.ones((x.shape[0], 1))
+    return np.hstack([np.ones((x.shape[0], 1)), x])
+
+
+class RadialBasis:
+    """An RBF system on fixed centres, factored once (the paper's per-GDE RBF system).
+
+    Parameters
+    ----------
+    centres : (N, 3) array
+        Rest positions of the handles (feature points ``x_i``).
+    kernel : {'multiquadric', 'gaussian', 'thin_plate_spline'}
+    smoothing : float
+        Tikhonov ``lambda`` of eq. 5 (0 interpolates exactly).
+    stiffness : None or float
+        ``None``: per-centre ``s_i`` of eq. 3. A float: the same ``s`` (mesh units) for all.
+    degree : int, optional
+        Degree of the added polynomial: -1 none, 0 constant, 1 affine. Defaults to the
+        kernel's usual choice (none for multiquadric and gaussian, 1 for the thin-plate spline).
+    """
+
+    def __init__(self, centres, kernel: str = "multiquadric", smoothing: float = DEFAULT_SMOOTHING,
+                 stiffness: float | None = None, degree: int | None = None):
+        if kernel not in KERNELS:
+            raise DeformError(f"unknown kernel '{kernel}'; choose one of: {', '.join(KERNELS)}")
+        c = check_points(centres, "handles")
+        if degree is None:
+            degree = DEFAULT_DEGREE[kernel]
+        if degree not in (-1, 0, 1):
+            raise DeformError(f"polynomial degree must be -1, 0 or 1, got {degree}")
+        if degree < MIN_DEGREE[kernel]:
+            raise DeformError(f"the {kernel} kernel needs a polynomial of degree >= {MIN_DEGREE[kernel]}")
+        smoothing = float(smoothing)
+        if not np.isfinite(smoothing) or smoothing < 0:
+            raise DeformError(f"smoothing must be a finite number >= 0, got {smoothing}")
+        n = c.shape[0]
+        m = _polynomial(c[:1], degree).shape[1]
+        if n < max(m, 1):
+            raise DeformError(
+                f"the {kernel} kernel with a degree-{degree} polynomial needs at least {m} handles, got {n}"
+            )
+        self.kernel = kernel
+        self.smoothing = smoothing
+        self.degree = degree
+        self.centres = c
+
+        # coincident handles make the system singular: name them
+        if n > 1:
+            span = float(np.linalg.norm(c.max(axis=0) - c.min(axis=0)))
+            tree = cKDTree(c)
+            pairs = sorted(tree.query_pairs(max(span, 1.0) * 1e-9))
+            if pairs:
+                i, j = pairs[0]
+                more = f" (and {len(pairs) - 1} more pair(s))" if len(pairs) > 1 else ""
+                raise DeformError(
+                    f"handles {i} and {j} coincide at {np.round(c[i], 9).tolist()}{more}; "
+                    "remove the duplicate or move it apart"
+                )
+        else:
+            span = 0.0
+        self.centre = c.mean(axis=0)
+        self.scale = span if span > 0 else 1.0
+        x = (c - self.centre) / self.scale
+
+        if stiffness is None:
+            if n > 1:
+                dist, _ = cKDTree(x).query(x, k=2)
+                s = dist[:, 1]
+            else:
+                s = np.ones(1)
+        else:
+            stiffness = float(stiffness)
+            if not np.isfinite(stiffness) or stiffness <= 0:
+                raise DeformError(f"stiffness must be a positive number, got {stiffness}")
+            s = np.full(n, stiffness / self.scale)
+        self.stiffness = s * self.scale  # in mesh units, for reporting
+        self._s = s
+        self._x = x
+
+        P = _polynomial(x, degree)
+        if m and np.linalg.matrix_rank(P) < m:
+            raise DeformError(
+                f"the handles are degenerate for a degree-{degree} polynomial "
+                "(a thin-plate spline needs at least 4 handles not all in one plane)"
+            )
+        K = self._basis_block(x)
+        A = np.zeros((n + m, n + m))
+        A[:n, :n] = K + smoothing * np.eye(n)
+        A[:n, n:] = P
+        A[n:, :n] = P.T
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", la.LinAlgWarning)
+            try:
+                self._lu = la.lu_factor(A, check_finite=False)
+                # rows of the inverse that map centre values to coefficients (eq. 4/5)
+                rhs = np.zeros((n + m, n))
+                rhs[:n] = np.eye(n)
+                self._inverse = la.lu_solve(self._lu, rhs, check_finite=False)
+            except (la.LinAlgWarning, la.LinAlgError, ValueError):
+                raise DeformError(
+                    "the RBF system is singular for these handles; use smoothing > 0 or spread the handles"
+                ) from None
+        if not np.all(np.isfinite(self._inverse)):
+            raise DeformError("the RBF system is singular for these handles; use smoothing > 0")
+        self._n, self._m = n, m
+
+    @property
+    def n_centres(self) -> int:
+        return self._n
+
+    def _basis_block(self, x: np.ndarray) -> np.ndarray:
+        r = np.sqrt(np.maximum(
+            (x * x).sum(1)[:, None] + (self._x * self._x).sum(1)[None, :] - 2.0 * x @ self._x.T, 0.0))
+        return _kernel(self.kernel, r, self._s[None, :])
+
+    def basis(self, points) -> np.ndarray:
+        """Evaluation matrix ``[h(||p - x_i||, s_i), p(x)]`` of shape (M, N + m)."""
+        p = (np.asarray(points, dtype=np.float64) - self.centre) / self.scale
+        return np.hstack([self._basis_block(p), _polynomial(p, self.degree)])
+
+    def coefficients(self, values) -> np.ndarray:
+        """Solve eq. 5 for the coefficients given values at the centres (back-substitution)."""
+        v = np.asarray(values, dtype=np.float64)
+        rhs = np.zeros((self._n + self._m,) + v.shape[1:])
+        rhs[: self._n] = v
+        return la.lu_solve(self._lu, rhs, check_finite=False)
+
+    def weights(self, points) -> np.ndarray:
+        """(M, N) matrix mapping values at the centres to values at ``points``."""
+        p = np.asarray(points, dtype=np.float64)
+        out = np.empty((p.shape[0], self._n))
+        for a in range(0, p.shape[0], _EVAL_CHUNK):
+            out[a:a + _EVAL_CHUNK] = self.basis(p[a:a + _EVAL_CHUNK]) @ self._inverse
+        return out
+
+    def __call__(self, points, values) -> np.ndarray:
+        """Evaluate the interpolant of ``values`` (N, k) at ``points`` (M, 3)."""
+        return self.basis(points) @ self.coefficients(values)
+
+
+def bind_rbf(rest, handles, kernel: str = "multiquadric", smoothing: float = DEFAULT_SMOOTHING,
+             stiffness: float | None = None, degree: int | None = None, rows=None,
+             dtype=np.float64) -> LinearDeformer:
+    """Bind a global RBF deformer: handles at ``handles`` move the vertices ``rest``.
+
+    ``rows`` restricts the deformation to those vertex indices (others stay bit-identical).
+    Returns a :class:`LinearDeformer` whose ``apply(offsets)`` gives the deformed mesh.
+    """
+    rest = check_points(rest, "mesh vertices")
+    system = RadialBasis(handles, kernel, smoothing, stiffness, degree)
+    pts = rest if rows is None else rest[np.asarray(rows)]
+    w = system.weights(pts)
+    return LinearDeformer(rest.astype(dtype), w.astype(dtype), rows)
