@@ -27,7 +27,7 @@ BASIC22 = (
     ("eye_outer_right", 33), ("eye_inner_right", 133), ("eye_inner_left", 362), ("eye_outer_left", 263),
     ("brow_outer_right", 70), ("brow_middle_right", 105), ("brow_inner_right", 107),
     ("brow_inner_left", 336), ("brow_middle_left", 334), ("brow_outer_left", 300),
-    ("nose_bridge", 168), ("nose_tip", 1), ("nostril_right", 98), ("nostril_left", 327),
+    ("nose_bridge", 168), ("nose_tip", 4), ("nostril_right", 98), ("nostril_left", 327),
     ("subnasale", 2),
     ("mouth_corner_right", 61), ("mouth_corner_left", 291),
     ("upper_lip_top", 0), ("upper_lip_inner", 13), ("lower_lip_inner", 14), ("lower_lip_bottom", 17),
@@ -196,8 +196,13 @@ def detect_landmarks(mesh, scheme: str = "mediapipe478", forward: str = "+z", up
             ) from None
         origins, dirs = r.pixel_rays(pts2d[:, :2])
     hit, pos, tri = mesh.cast_rays(origins, dirs)
+    # a first hit on a back face means the ray went through an opening (eye holes of a scan,
+    # parted lips) and met the inside of the head: treat it as a miss
+    fv = mesh.vertices[mesh.faces[np.where(hit, tri, 0)]]
+    normal = np.cross(fv[:, 1] - fv[:, 0], fv[:, 2] - fv[:, 0])
+    hit &= (normal * dirs).sum(1) < 0
     if (~hit).any():
-        # rays through a gap (parted lips, eye openings): take the nearest front-most vertex
+        # rays through a gap: take the nearest front-most vertex
         view = mesh.vertices @ rot.T
         o = origins[~hit] @ rot.T
         d2 = ((view[None, :, :2] - o[:, None, :2]) ** 2).sum(-1)

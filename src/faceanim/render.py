@@ -90,9 +90,15 @@ class OffscreenRenderer:
         kwargs = dict(smooth_shading=False, specular=0.15, specular_power=12, ambient=0.12, diffuse=0.9)
         if textured:
             tex = np.ascontiguousarray(mesh.texture[..., :3])
-            self.plotter.add_mesh(self.poly, texture=pv.Texture(tex), **kwargs)
+            actor = self.plotter.add_mesh(self.poly, texture=pv.Texture(tex), **kwargs)
         else:
-            self.plotter.add_mesh(self.poly, color=SKIN, **kwargs)
+            actor = self.plotter.add_mesh(self.poly, color=SKIN, **kwargs)
+        # the inside of a head seen through eye or mouth openings is dark, as in a real face
+        back = actor.GetProperty().NewInstance()
+        back.DeepCopy(actor.GetProperty())
+        back.SetColor(0.05, 0.04, 0.04)
+        back.SetSpecular(0.0)
+        actor.SetBackfaceProperty(back)
 
         fv = self._view(mesh.vertices if frame_vertices is None else frame_vertices)
         lo, hi = fv.min(0), fv.max(0)

@@ -117,8 +117,9 @@ def influence_region(adjacency: sp.csr_matrix, vertices: np.ndarray, root: int, 
         depth += 1
     region = np.flatnonzero(seen)
     # leaves of the search: region vertices with at least one neighbour outside the region
-    outside = sp.csr_matrix(adjacency[region]).multiply(~seen[None, :])
-    boundary = region[np.diff(sp.csr_matrix(outside).indptr) > 0]
+    sub = adjacency[region]
+    inside = sub.astype(np.int32) @ seen.astype(np.int32)
+    boundary = region[inside < np.diff(sub.indptr)]
     return region, boundary
 
 

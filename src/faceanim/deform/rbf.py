@@ -12,7 +12,10 @@ so evaluating a frame is a product (``LinearDeformer``).
 
 Kernels (``r`` distance, ``s`` stiffness of the centre):
 
-- ``multiquadric``: Hardy's ``h = sqrt(r^2 + s^2)`` (eq. 2), no polynomial by default;
+- ``multiquadric``: Hardy's ``h = sqrt(r^2 + s^2)`` (eq. 2), no polynomial by default. It enters
+  the system negated (as in scipy), which leaves the exact interpolant unchanged but makes
+  ``H + lambda I`` a true Tikhonov damping: with ``+h`` the matrix has N - 1 negative eigenvalues
+  and adding ``lambda I`` pushes them towards zero, which can make eq. 5 singular;
 - ``gaussian``: ``h = exp(-(r / s)^2)``, no polynomial by default;
 - ``thin_plate_spline``: ``h = r^2 log r`` with its affine part (degree 1), scale free.
 
@@ -68,7 +71,9 @@ def check_points(points, name: str, min_count: int = 1) -> np.ndarray:
 
 def _kernel(kernel: str, r: np.ndarray, s: np.ndarray | None) -> np.ndarray:
     if kernel == "multiquadric":
-        return np.sqrt(r * r + s * s)
+        # negated, as in scipy: -sqrt(r^2 + s^2) is conditionally positive definite, so the
+        # Tikhonov term of eq. 5 damps the system; the exact interpolant (lambda = 0) is the same
+        return -np.sqrt(r * r + s * s)
     if kernel == "gaussian":
         return np.exp(-((r / s) ** 2))
     if kernel == "thin_plate_spline":

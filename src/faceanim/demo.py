@@ -1,0 +1,74 @@
+"""The demo: the default face, four expressions made of GDEs, written as GLB, MP4 and PNGs.
+
+The expressions follow the seed paper's examples (figures 5, 7-9): a smile from the mouth
+corners and cheeks, sadness from lowered corners and raised inner brows, anger from lowered,
+drawn-together brows and pressed lips, and the mouth shape for 'A' from the jaw and lower lip.
+Offsets and extents are in metres, placed at landmarks of the default face.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .animation import expression_tour
+from .deform.gde import GeometryDeformationElement as GDE
+from .default_face import default_face, default_landmarks
+from .export.gltf import write_gltf
+from .rig import Expression, Rig
+from .render import OffscreenRenderer, save_png, write_video
+
+
+def demo_expressions(lm) -> list[Expression]:
+    """Smile, sadness, anger and 'A' as GDE sets on a face with MediaPipe-478 landmarks ``lm``."""
+
+    def e(name, metric, extent):
+        return GDE(tuple(lm[name]), extent, metric, name=name)
+
+    smile = Expression("smile", [
+        e("mouth_corner_right", "euclidean", 0.028), e("mouth_corner_left", "euclidean", 0.028),
+        e("cheek_right", "euclidean", 0.025), e("cheek_left", "euclidean", 0.025),
+    ], np.array([[-0.010, 0.009, -0.004], [0.010, 0.009, -0.004], [0, 0.005, 0.003], [0, 0.005, 0.003]]))
+    sadness = Expression("sadness", [
+        e("mouth_corner_right", "euclidean", 0.025), e("mouth_corner_left", "euclidean", 0.025),
+        e("brow_inner_right", "euclidean", 0.02), e("brow_inner_left", "euclidean", 0.02),
+        e("lower_lip_bottom", "edges", 10),
+    ], np.array([[0.0015, -0.008, 0], [-0.0015, -0.008, 0], [0.0015, 0.007, 0], [-0.0015, 0.007, 0],
+                 [0, 0.003, 0.002]]))
+    anger = Expression("anger", [
+        e("brow_inner_right", "euclidean", 0.022), e("brow_inner_left", "euclidean", 0.022),
+        e("brow_middle_right", "euclidean", 0.02), e("brow_middle_left", "euclidean", 0.02),
+        e("upper_lip_inner", "edges", 8), e("lower_lip_inner", "edges", 8),
+    ], np.array([[0.005, -0.008, 0.001], [-0.005, -0.008, 0.001], [0, -0.005, 0], [0, -0.005, 0],
+                 [0, -0.0025, 0], [0, 0.0025, 0]]))
+    mouth_a = Expression("A", [
+        e("chin", "euclidean", 0.045), e("lower_lip_inner", "edges", 14), e("upper_lip_inner", "edges", 10),
+    ], np.array([[0, -0.020, -0.006], [0, -0.012, 0], [0, 0.003, 0]]))
+    return [smile, sadness, anger, mouth_a]
+
+
+def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = 30.0, size: int = 512,
+             quiet: bool = False) -> list[Path]:
+    """Build the default face and its expressions; write demo.glb, demo.mp4 and PNGs to ``out_dir``."""
+    from tqdm import tqdm
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    mesh = default_face()
+    lm = default_landmarks(mesh)
+    rig = Rig.from_expressions(mesh, demo_expressions(lm))
+    tour = expression_tour(rig.names)
+    times, weights = tour.sample(fps)
+    written = [write_gltf(out / "demo.glb", mesh, rig.blendshape_dict(), times, weights)]
+
+    show = not quiet and sys.stderr.isatty()
+    with OffscreenRenderer(mesh, size=(size, size), yaw=15.0, pitch=4.0) as renderer:
+        written.append(save_png(out / "neutral.png", renderer.render()))
+        for name in rig.names:
+            written.append(save_png(out / f"{name}.png", renderer.render(rig.pose({name: 1.0}))))
+        frames = (renderer.render(v) for v in rig.evaluate(weights))
+        with tqdm(total=len(times), desc="rendering demo.mp4", unit="frame", disable=not show) as bar:
+            written.append(write_video(out / "demo.mp4", frames, fps=fps, progress=bar))
+    return written
