@@ -1,0 +1,45 @@
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("GLOG_minloglevel", "2")
+os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+FACEWAREHOUSE = DATA / "facewarehouse-tester1"
+ICT = DATA / "ict-facekit"
+
+
+def need(path: Path) -> Path:
+    if not path.exists():
+        pytest.skip(f"real data not available: {path} (it lives in ../shared/data beside the project)")
+    return path
+
+
+@pytest.fixture(scope="session")
+def face():
+    from faceanim.default_face import default_face
+
+    return default_face()
+
+
+@pytest.fixture(scope="session")
+def base_face():
+    from faceanim.default_face import default_face
+
+    return default_face(dense=False)
+
+
+@pytest.fixture(scope="session")
+def face_landmarks(face):
+    from faceanim.default_face import default_landmarks
+
+    return default_landmarks(face)
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(1234)

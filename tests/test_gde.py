@@ -1,0 +1,111 @@
+"""Geometry deformation elements: region search, anchors, locality, the paper's algorithm."""
+
+import numpy as np
+import pytest
+import scipy.sparse.csgraph as csgraph
+
+from faceanim.deform import GeometryDeformationElement as GDE
+from faceanim.deform import bind_element, bind_gdes
+from faceanim.errors import DeformError
+
+
+def test_edge_metric_region_is_the_bfs_ball(face, face_landmarks):
+    root = 61  # mouth corner (vertex i of the default face is MediaPipe landmark i)
+    b = bind_element(face, GDE(tuple(face.vertices[root]), 6, "edges"))
+    # oracle: hop distances from scipy's breadth-first search
+    hops = csgraph.shortest_path(face.adjacency.astype(float), unweighted=True, indices=root)
+    np.testing.assert_array_equal(b.region, np.flatnonzero(hops <= 6))
+    np.testing.assert_array_equal(np.sort(b.boundary), np.flatnonzero(hops == 6))
+    assert b.root == root
+
+
+def test_euclidean_metric_region_is_connected_ball(face, face_landmarks):
+    c = face_landmarks["brow_inner_left"]
+    b = bind_element(face, GDE(tuple(c), 0.015, "euclidean"))
+    d = np.linalg.norm(face.vertices[b.region] - c, axis=1)
+    assert d.max() <= 0.015
+    # every vertex of the ball that is connected to the root inside the ball is found
+    inside = np.flatnonzero(np.linalg.norm(face.vertices - c, axis=1) <= 0.015)
+    sub = face.adjacency[inside][:, inside]
+    _, labels = csgraph.connected_components(sub, directed=False)
+    root_label = labels[np.searchsorted(inside, b.root)]
+    np.testing.assert_array_equal(b.region, inside[labels == root_label])
+
+
+def test_locality_outside_regions_is_bit_identical_and_anchors_fixed(face, face_landmarks):
+    elements = [GDE(tuple(face_landmarks["mouth_corner_left"]), 0.02, "euclidean"),
+                GDE(tuple(face_landmarks["brow_inner_right"]), 8, "edges")]
+    deformer = bind_gdes(face, elements)
+    out = deformer.apply(np.array([[0.004, 0.006, -0.002], [0.0, 0.005, 0.0]]))
+    bound = [bind_element(face, e) for e in elements]
+    region = np.unique(np.concatenate([b.region for b in bound]))
+    outside = np.setdiff1d(np.arange(face.n_vertices), region)
+    assert np.array_equal(out[outside], face.vertices[outside])  # bit-identical
+    fixed = np.concatenate([b.boundary for b in bound])
+    assert np.array_equal(out[fixed], face.vertices[fixed])  # every anchor stays put
+    for b in bound:
+        assert len(b.anchors) <= 20
+        assert np.abs(out[b.moving] - face.vertices[b.moving]).max() > 1e-3
+
+
+def test_control_point_moves_by_its_offset(face, face_landmarks):
+    c = face_landmarks["chin"]
+    off = np.array([0.0, -0.01, 0.0])
+    exact = bind_gdes(face, [GDE(tuple(c), 0.03, "euclidean", smoothing=0.0)])
+    root = int(face.kdtree.query(c)[1])
+    np.testing.assert_allclose(exact.apply(off[None])[root] - face.vertices[root], off, atol=1e-12)
+    # with the paper's lambda = 0.01 the control point is approximated, not matched
+    smooth = bind_gdes(face, [GDE(tuple(c), 0.03, "euclidean")])
+    moved = smooth.apply(off[None])[root] - face.vertices[root]
+    assert 0.5 < moved[1] / off[1] < 1.0
+
+
+def test_control_point_off_the_vertices(face):
+    """A control point inside a triangle (paper step 1) binds to its nearest vertex."""
+    tri = face.faces[1000]
+    p = face.vertices[tri].mean(0)
+    b = bind_element(face, GDE(tuple(p), 5, "edges"))
+    assert b.root in tri
+    assert b.moving.size > 10
+
+
+def test_anchors_sampled_evenly_around_the_control_point(face, face_landmarks):
+    c = face_landmarks["cheek_left"]
+    b = bind_element(face, GDE(tuple(c), 0.02, "euclidean"))
+    assert b.boundary.size > 20 and b.anchors.size == 20
+    rel = face.vertices[b.anchors] - c
+    normal = face.vertex_normals()[b.root]
+    u = np.cross(normal, [0, 1, 0]); u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    angles = np.sort(np.arctan2(rel @ v, rel @ u))
+    gaps = np.diff(np.r_[angles, angles[0] + 2 * np.pi])
+    assert gaps.max() < 3 * (2 * np.pi / 20)  # no large sector without an anchor
+
+
+def test_zero_extent_is_vertex_manipulation(face):
+    v = 5000
+    d = bind_gdes(face, [GDE(tuple(face.vertices[v]), 0, "edges")])
+    out = d.apply(np.array([[0.001, 0.002, 0.003]]))
+    moved = np.flatnonzero(np.any(out != face.vertices, axis=1))
+    assert moved.tolist() == [v]
+    np.testing.assert_allclose(out[v] - face.vertices[v], [0.001, 0.002, 0.003])
+
+
+def test_edge_metric_keeps_the_upper_lip_still(face, face_landmarks):
+    """The paper's figure 3: an edge-metric element on the lower lip leaves the upper lip."""
+    d = bind_gdes(face, [GDE(tuple(face_landmarks["lower_lip_inner"]), 12, "edges")])
+    out = d.apply(np.array([[0.0, -0.008, 0.0]]))
+    upper = [0, 13, 37, 267, 82, 312]  # upper-lip landmarks
+    assert np.array_equal(out[upper], face.vertices[upper])
+    assert out[14, 1] < face.vertices[14, 1] - 0.004
+
+
+def test_bad_elements(face):
+    with pytest.raises(DeformError, match="from the surface"):
+        bind_element(face, GDE((0.0, 0.0, 1.0), 4))
+    with pytest.raises(DeformError, match="unknown metric"):
+        bind_element(face, GDE(tuple(face.vertices[0]), 4, "geodesic"))
+    with pytest.raises(DeformError, match="whole number"):
+        bind_element(face, GDE(tuple(face.vertices[0]), 2.5, "edges"))
+    with pytest.raises(DeformError, match="NaN"):
+        bind_element(face, GDE((np.nan, 0.0, 0.0), 4))

@@ -1,0 +1,62 @@
+"""Expressions as GDE sets driven by d, mixtures, and key-frame interpolation."""
+
+import numpy as np
+import pytest
+
+from faceanim.animation import KeyframeAnimation, expression_tour
+from faceanim.deform import bind_gdes
+from faceanim.demo import demo_expressions
+from faceanim.errors import DeformError, FaceAnimError
+from faceanim.rig import Rig
+
+
+@pytest.fixture(scope="module")
+def rig(face, face_landmarks):
+    return Rig.from_expressions(face, demo_expressions(face_landmarks))
+
+
+def test_expression_blendshape_is_its_gdes_at_full_offset(rig, face, face_landmarks):
+    smile = demo_expressions(face_landmarks)[0]
+    direct = bind_gdes(face, smile.elements).apply(smile.offsets)
+    np.testing.assert_allclose(rig.pose({"smile": 1.0}), direct, atol=1e-12)
+    np.testing.assert_allclose(rig.pose({"smile": 0.0}), face.vertices, atol=0)
+    half = rig.pose({"smile": 0.5}) - face.vertices
+    np.testing.assert_allclose(half, 0.5 * (direct - face.vertices), atol=1e-12)
+
+
+def test_mixture_adds_blendshapes(rig, face):
+    mix = rig.pose({"smile": 0.7, "A": 0.4}) - face.vertices
+    parts = 0.7 * (rig.pose({"smile": 1}) - face.vertices) + 0.4 * (rig.pose({"A": 1}) - face.vertices)
+    np.testing.assert_allclose(mix, parts, atol=1e-12)
+
+
+def test_expressions_move_what_they_should(rig, face):
+    smile = rig.pose({"smile": 1.0})
+    assert smile[61, 1] > face.vertices[61, 1] + 0.004 and smile[291, 1] > face.vertices[291, 1] + 0.004
+    a = rig.pose({"A": 1.0})
+    assert a[152, 1] < face.vertices[152, 1] - 0.01  # the chin drops
+    assert np.array_equal(a[10], face.vertices[10])  # the forehead does not move
+
+
+def test_evaluate_matches_pose_per_frame(rig):
+    tour = expression_tour(rig.names)
+    t, w = tour.sample(10)
+    frames = rig.evaluate(w)
+    for f in [0, len(t) // 3, len(t) - 1]:
+        np.testing.assert_allclose(frames[f], rig.pose(w[f]), atol=1e-12)
+
+
+def test_keyframes_pass_through_keys_and_stay_in_range():
+    anim = KeyframeAnimation.from_keys(["a", "b"], [(0, {}), (1, {"a": 1}), (2, {"a": 0.2, "b": 1}), (3, {})])
+    np.testing.assert_allclose(anim.at([0, 1, 2, 3]), [[0, 0], [1, 0], [0.2, 1], [0, 0]], atol=1e-12)
+    t, w = anim.sample(100)
+    assert w.min() >= -1e-12 and w.max() <= 1 + 1e-12  # monotone cubic: no overshoot
+    lin = KeyframeAnimation.from_keys(["a"], [(0, {}), (2, {"a": 1})], "linear")
+    np.testing.assert_allclose(lin.at([0.5, 1.0]), [[0.25], [0.5]])
+
+
+def test_bad_controls(rig):
+    with pytest.raises(DeformError, match="unknown control"):
+        rig.pose({"grin": 1})
+    with pytest.raises(FaceAnimError, match="strictly increasing"):
+        KeyframeAnimation.from_keys(["a"], [(1, {}), (0, {})])
