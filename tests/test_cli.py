@@ -1,0 +1,99 @@
+"""The faceanim command: outputs match the library, bad input exits non-zero with no output."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from faceanim.cli import main
+from faceanim.deform import bind_rbf
+from faceanim.mesh import load_mesh, save_mesh
+
+
+@pytest.fixture
+def mesh_file(tmp_path, base_face):
+    path = tmp_path / "face.obj"
+    save_mesh(base_face, path)
+    return path
+
+
+def _write(tmp_path, name, data):
+    p = tmp_path / name
+    p.write_text(json.dumps(data) if not isinstance(data, str) else data)
+    return p
+
+
+def test_deform_rbf_matches_the_library(tmp_path, mesh_file, base_face):
+    handles = base_face.vertices[[1, 61, 291, 152, 10, 234, 454]]
+    offsets = np.zeros_like(handles)
+    offsets[3] = [0, -0.01, 0]
+    spec = _write(tmp_path, "h.json", {"method": "rbf", "kernel": "thin_plate_spline", "smoothing": 0.0,
+                                       "handles": handles.tolist(), "offsets": offsets.tolist()})
+    assert main(["deform", str(mesh_file), "--handles", str(spec), "-o", str(tmp_path / "out.obj")]) == 0
+    out = load_mesh(tmp_path / "out.obj")
+    expected = bind_rbf(base_face.vertices, handles, "thin_plate_spline", 0.0).apply(offsets)
+    np.testing.assert_allclose(out.vertices, expected, atol=1e-8)
+    assert out.n_vertices == base_face.n_vertices and out.texture is not None
+
+
+def test_deform_gde_to_glb(tmp_path, mesh_file, base_face):
+    spec = _write(tmp_path, "g.json", {"method": "gde", "elements": [
+        {"control": base_face.vertices[152].tolist(), "offset": [0, -0.01, 0], "metric": "edges", "extent": 3}]})
+    assert main(["deform", str(mesh_file), "--handles", str(spec), "-o", str(tmp_path / "out.glb")]) == 0
+    out = load_mesh(tmp_path / "out.glb")
+    assert out.vertices[152, 1] < base_face.vertices[152, 1] - 0.005
+
+
+BAD = {
+    "missing mesh": (None, {"method": "rbf"}, "does not exist"),
+    "unknown kernel": ("ok", {"method": "rbf", "kernel": "cubic", "handles": [[0, 0, 0], [0.01, 0, 0]],
+                              "offsets": [[0, 0, 0], [0, 0, 0]]}, "unknown kernel 'cubic'"),
+    "coincident": ("ok", {"method": "rbf", "handles": [[0, 0, 0], [0.01, 0, 0], [0, 0, 0]],
+                          "offsets": [[0, 0, 0]] * 3}, "handles 0 and 2 coincide"),
+    "nan offsets": ("ok", {"method": "rbf", "handles": [[0, 0, 0], [0.01, 0, 0]],
+                           "offsets": [[0, 0, 0], [float("nan"), 0, 0]]}, "NaN"),
+    "too few for tps": ("ok", {"method": "rbf", "kernel": "thin_plate_spline", "handles": [[0, 0, 0], [0.01, 0, 0]],
+                               "offsets": [[0, 0, 0], [0, 0, 0]]}, "at least 4 handles"),
+    "far control": ("ok", {"method": "gde", "elements": [{"control": [0, 0, 5], "offset": [0, 0, 0]}]},
+                    "from the surface"),
+    "malformed json": ("ok", "{not json", "not valid JSON"),
+    "nan mesh": ("nan", {"method": "rbf"}, "NaN or infinite"),
+    "empty mesh": ("empty", {"method": "rbf"}, "empty"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_input_exits_nonzero_without_output(tmp_path, mesh_file, capsys, case):
+    mesh_kind, spec, message = BAD[case]
+    mesh = {None: tmp_path / "nope.obj", "ok": mesh_file}.get(mesh_kind)
+    if mesh_kind == "nan":
+        mesh = _write(tmp_path, "nan.obj", "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n")
+    if mesh_kind == "empty":
+        mesh = _write(tmp_path, "empty.obj", "")
+    h = _write(tmp_path, "h.json", spec)
+    out = tmp_path / "result.obj"
+    code = main(["deform", str(mesh), "--handles", str(h), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err and err.count("\n") == 1
+    assert not out.exists() and not list(tmp_path.glob(".result*"))
+
+
+def test_landmarks_command_and_no_face(tmp_path, mesh_file):
+    out = tmp_path / "lm.json"
+    assert main(["landmarks", str(mesh_file), "-o", str(out), "--scheme", "basic22"]) == 0
+    data = json.loads(out.read_text())
+    assert data["scheme"] == "basic22" and len(data["points"]) == 22
+    p = {q["name"]: q for q in data["points"]}["mouth_corner_right"]
+    assert p["index"] == 61 and len(p["barycentric"]) == 3
+    # a face looking down -x is not found when we claim it looks along +z
+    box = _write(tmp_path, "box.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    assert main(["landmarks", str(box), "-o", str(tmp_path / "none.json")]) == 2
+    assert not (tmp_path / "none.json").exists()
+
+
+def test_console_script_runs():
+    r = subprocess.run([sys.executable, "-m", "faceanim", "--help"], capture_output=True, text=True)
+    assert r.returncode == 0 and "demo" in r.stdout
