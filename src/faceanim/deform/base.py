@@ -18,9 +18,8 @@ import scipy.sparse as sp
 
 from ..errors import DeformError
 
-# frames per block in batched evaluation: enough columns for BLAS to run near peak, small
-# enough for the intermediate block to stay in cache
-_FRAME_BLOCK = 32
+# frames per block in batched dense evaluation: enough rows for BLAS to run near peak
+_FRAME_BLOCK = 64
 
 
 class LinearDeformer:
@@ -146,29 +145,54 @@ class LinearDeformer:
 
     __call__ = apply
 
+    def _sparse_full_rows(self):
+        """CSR over all V rows (empty where nothing moves) and the (V, 3) mask of movable rows.
+
+        Scattering a product into ``out[rows]`` by fancy indexing costs more than the product
+        itself; a full-height CSR gives a contiguous (V, 3) result that is added only where
+        ``mask`` is set, so unmoved vertices keep their exact bits (even -0.0).
+        """
+        if getattr(self, "_full", None) is None:
+            w = self.weights
+            if self.rows is None:
+                full = w
+                mask = np.ones((self.n_vertices, 3), dtype=bool)
+            else:
+                counts = np.diff(w.indptr)
+                indptr = np.zeros(self.n_vertices + 1, dtype=w.indptr.dtype)
+                np.add.at(indptr, self.rows + 1, counts)
+                full = sp.csr_matrix((w.data, w.indices, np.cumsum(indptr)), shape=(self.n_vertices, self.n_handles))
+                mask = np.zeros((self.n_vertices, 3), dtype=bool)
+                mask[self.rows] = True
+            self._full, self._mask = full, mask
+        return self._full, self._mask
+
     def _evaluate(self, base: np.ndarray, off: np.ndarray) -> np.ndarray:
         w, rows = self.weights, self.rows
-        if off.ndim == 2:
-            d = w @ off
-            if rows is None:
-                return base + d
-            out = base.copy()
-            out[rows] += d
-            return out
-        frames = off.shape[0]
-        out = np.empty((frames,) + base.shape, dtype=base.dtype)
-        h = self.n_handles
-        for start in range(0, frames, _FRAME_BLOCK):
-            stop = min(start + _FRAME_BLOCK, frames)
-            n = stop - start
-            block = off[start:stop].transpose(1, 0, 2).reshape(h, 3 * n)
-            d = (w @ block).reshape(-1, n, 3).transpose(1, 0, 2)
-            if rows is None:
-                np.add(base, d, out=out[start:stop])
-            else:
-                out[start:stop] = base
-                out[start:stop, rows] += d
-        return out
+        single = off.ndim == 2
+        if single and rows is None and not sp.issparse(w):
+            return base + w @ off
+        frames = off[None] if single else off
+        out = np.empty((frames.shape[0],) + base.shape, dtype=base.dtype)
+        if sp.issparse(w):
+            # sparse: one product per frame, added in place where vertices can move
+            full, mask = self._sparse_full_rows()
+            for f in range(frames.shape[0]):
+                out[f] = base
+                np.add(out[f], full @ frames[f], out=out[f], where=mask)
+        elif rows is None:
+            # dense: per coordinate, (frames, H) @ (H, V) with contiguous operands for BLAS
+            wt = w.T
+            for start in range(0, frames.shape[0], _FRAME_BLOCK):
+                stop = min(start + _FRAME_BLOCK, frames.shape[0])
+                for c in range(3):
+                    d = np.ascontiguousarray(frames[start:stop, :, c]) @ wt
+                    np.add(d, base[:, c], out=out[start:stop, :, c])
+        else:
+            for f in range(frames.shape[0]):
+                out[f] = base
+                out[f, rows] += w @ frames[f]
+        return out[0] if single else out
 
     # ------------------------------------------------------------------ composition
     @staticmethod
