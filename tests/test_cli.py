@@ -97,3 +97,16 @@ def test_landmarks_command_and_no_face(tmp_path, mesh_file):
 def test_console_script_runs():
     r = subprocess.run([sys.executable, "-m", "faceanim", "--help"], capture_output=True, text=True)
     assert r.returncode == 0 and "demo" in r.stdout
+
+
+def test_deform_gde_from_a_2d_pick(tmp_path, mesh_file, base_face):
+    from faceanim.landmarks import detection_view
+
+    with detection_view(base_face) as view:
+        xy = view.project(base_face.vertices[[152]])[0]
+    spec = _write(tmp_path, "p.json", {"method": "gde", "elements": [
+        {"pick": xy.tolist(), "offset": [0, -0.01, 0], "metric": "edges", "extent": 2, "smoothing": 0}]})
+    assert main(["deform", str(mesh_file), "--handles", str(spec), "-o", str(tmp_path / "out.obj")]) == 0
+    out = load_mesh(tmp_path / "out.obj")
+    moved = np.linalg.norm(out.vertices - base_face.vertices, axis=1)
+    assert moved.argmax() == 152 or moved[152] > 0.5 * moved.max()

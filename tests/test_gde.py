@@ -109,3 +109,13 @@ def test_bad_elements(face):
         bind_element(face, GDE(tuple(face.vertices[0]), 2.5, "edges"))
     with pytest.raises(DeformError, match="NaN"):
         bind_element(face, GDE((np.nan, 0.0, 0.0), 4))
+
+
+def test_sparse_batch_equals_frame_by_frame(face, face_landmarks, rng):
+    """Long batches run on threads; every frame must equal its own single-frame result."""
+    names = ["mouth_corner_left", "mouth_corner_right", "chin", "brow_inner_left"]
+    d = bind_gdes(face, [GDE(tuple(face_landmarks[n]), 0.02, "euclidean") for n in names])
+    frames = rng.normal(scale=0.003, size=(300, 4, 3))
+    batch = d.apply(frames)
+    for f in [0, 149, 150, 299]:
+        assert np.array_equal(batch[f], d.apply(frames[f]))

@@ -116,3 +116,17 @@ def test_bad_landmark_file(tmp_path):
     (tmp_path / "bad.json").write_text('{"points": [{"name": "x", "position": [0, "a", 0]}]}')
     with pytest.raises(LandmarkError, match="invalid position"):
         Landmarks.load(tmp_path / "bad.json")
+
+
+def test_2d_picks_ray_cast_onto_the_surface(face):
+    """Seed section 2.2: a pick at a vertex's image position lands on that vertex."""
+    from faceanim.landmarks import detection_view, pick_surface_points
+
+    ids = [4, 61, 152, 334]  # nose tip, mouth corner, chin, brow
+    with detection_view(face) as view:
+        xy = view.project(face.vertices[ids])
+    pos, tri = pick_surface_points(face, xy)
+    err = np.linalg.norm(pos - face.vertices[ids], axis=1)
+    assert err.max() < 2 * face.mean_edge_length
+    for k, i in enumerate(ids):
+        assert np.linalg.norm(face.vertices[face.faces[tri[k]]] - face.vertices[i], axis=1).min() < 3 * face.mean_edge_length

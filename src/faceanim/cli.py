@@ -70,6 +70,12 @@ def _cmd_deform(args) -> None:
         for k, e in enumerate(elements):
             if not isinstance(e, dict) or "offset" not in e:
                 raise InputFileError(f"handle file '{args.handles}': element {k} needs an 'offset' [dx, dy, dz]")
+            if "pick" in e and "control" not in e:
+                # a 2D pick in the front view, converted to a surface point by ray casting
+                from .landmarks import pick_surface_points
+
+                e = {**{k2: v for k2, v in e.items() if k2 != "pick"},
+                     "control": pick_surface_points(mesh, [e["pick"]], args.forward, args.up)[0][0].tolist()}
             gdes.append(GeometryDeformationElement.from_dict(e, k))
             offsets.append(check_points(e["offset"], f"element {k} offset")[0])
         deformer = bind_gdes(mesh, gdes)
@@ -129,6 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     df.add_argument("--handles", required=True, help="JSON: method rbf (handles, offsets) or gde (elements)")
     df.add_argument("-o", "--output", required=True, type=_output_path([".obj", ".ply", ".glb"]))
     df.add_argument("--image", type=_output_path([".png"]), help="also render the result to a PNG")
+    df.add_argument("--forward", default="+z", help="axis the face looks along, for 2D picks (default +z)")
+    df.add_argument("--up", default="+y", help="axis pointing up, for 2D picks (default +y)")
     df.set_defaults(func=_cmd_deform)
 
     r = sub.add_parser("render", help="render a mesh to PNG")

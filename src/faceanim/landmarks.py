@@ -179,13 +179,12 @@ def detect_landmarks(mesh, scheme: str = "mediapipe478", forward: str = "+z", up
     ``forward`` and ``up`` say which mesh axes the face looks along and points up (FaceWarehouse,
     ICT and faceanim's default face: +z and +y).
     """
-    from .render import OffscreenRenderer, view_rotation
+    from .render import view_rotation
 
     if scheme not in SCHEMES:
         raise LandmarkError(f"unknown landmark scheme '{scheme}'; choose one of: {', '.join(SCHEMES)}")
     rot = view_rotation(forward, up)
-    with OffscreenRenderer(mesh, size=(size, size), parallel=True, rotation=rot,
-                           frame_vertices=_face_frame(mesh, rot), margin=1.0) as r:
+    with detection_view(mesh, forward, up, size) as r:
         image = r.render()
         try:
             pts2d = detect_landmarks_in_image(image)
@@ -195,6 +194,42 @@ def detect_landmarks(mesh, scheme: str = "mediapipe478", forward: str = "+z", up
                 "pass --forward/--up if the face points elsewhere, or give landmarks in a JSON file)"
             ) from None
         origins, dirs = r.pixel_rays(pts2d[:, :2])
+    pos, tri = _cast_onto_surface(mesh, origins, dirs, rot)
+    bary = mesh.barycentric(pos, tri)
+    names = [n for n, _ in SCHEMES[scheme]]
+    idx = np.array([i for _, i in SCHEMES[scheme]])
+    lms = Landmarks(scheme, names, idx, pos[idx], tri[idx], bary[idx], mesh.source or mesh.name)
+    return (lms, image) if return_image else lms
+
+
+def detection_view(mesh, forward: str = "+z", up: str = "+y", size: int = 768):
+    """The parallel front view used for detection; its normalised image coordinates are the
+    ones :func:`pick_surface_points` takes (x right, y down, in [0, 1])."""
+    from .render import OffscreenRenderer, view_rotation
+
+    rot = view_rotation(forward, up)
+    return OffscreenRenderer(mesh, size=(size, size), parallel=True, rotation=rot,
+                             frame_vertices=_face_frame(mesh, rot), margin=1.0)
+
+
+def pick_surface_points(mesh, xy, forward: str = "+z", up: str = "+y") -> tuple[np.ndarray, np.ndarray]:
+    """2D picks to 3D surface points by ray casting (seed paper section 2.2).
+
+    ``xy`` (N, 2) are normalised coordinates in the front view that ``faceanim landmarks
+    --image`` saves. Returns (positions (N, 3), triangle ids (N,)).
+    """
+    from .render import view_rotation
+
+    xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
+    if xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+        raise LandmarkError(f"picks must be finite (N, 2) image coordinates, got shape {xy.shape}")
+    with detection_view(mesh, forward, up) as r:
+        origins, dirs = r.pixel_rays(xy)
+    return _cast_onto_surface(mesh, origins, dirs, view_rotation(forward, up))
+
+
+def _cast_onto_surface(mesh, origins, dirs, rot) -> tuple[np.ndarray, np.ndarray]:
+    """First front-facing hit of each ray; rays through an opening snap to the nearest vertex."""
     hit, pos, tri = mesh.cast_rays(origins, dirs)
     # a first hit on a back face means the ray went through an opening (eye holes of a scan,
     # parted lips) and met the inside of the head: treat it as a miss
@@ -209,14 +244,9 @@ def detect_landmarks(mesh, scheme: str = "mediapipe478", forward: str = "+z", up
         near = d2 <= d2.min(1, keepdims=True) + (0.5 * mesh.mean_edge_length) ** 2
         score = np.where(near, view[None, :, 2], -np.inf)
         v = score.argmax(1)
-        vt = _vertex_triangle(mesh)
         pos[~hit] = mesh.vertices[v]
-        tri[~hit] = vt[v]
-    bary = mesh.barycentric(pos, tri)
-    names = [n for n, _ in SCHEMES[scheme]]
-    idx = np.array([i for _, i in SCHEMES[scheme]])
-    lms = Landmarks(scheme, names, idx, pos[idx], tri[idx], bary[idx], mesh.source or mesh.name)
-    return (lms, image) if return_image else lms
+        tri[~hit] = _vertex_triangle(mesh)[v]
+    return pos, tri
 
 
 def _vertex_triangle(mesh) -> np.ndarray:

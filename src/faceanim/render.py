@@ -171,6 +171,15 @@ class OffscreenRenderer:
         d_view = np.array([0.0, 0.0, -1.0])
         return origins_view @ self.rotation, np.tile(d_view @ self.rotation, (len(x), 1))
 
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Normalised image coordinates (x right, y down) of mesh-space points, parallel view."""
+        if not self.parallel:
+            raise FaceAnimError("projection is defined for the parallel (orthographic) view only")
+        v = self._view(np.atleast_2d(points))
+        height = 2.0 * self.parallel_scale
+        width = height * self.size[0] / self.size[1]
+        return np.stack([(v[:, 0] - self.centre[0]) / width + 0.5, 0.5 - (v[:, 1] - self.centre[1]) / height], 1)
+
     def close(self) -> None:
         self.plotter.close()
 

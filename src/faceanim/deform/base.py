@@ -11,6 +11,8 @@ stays bit-identical.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
 import numpy as np
@@ -20,6 +22,7 @@ from ..errors import DeformError
 
 # frames per block in batched dense evaluation: enough rows for BLAS to run near peak
 _FRAME_BLOCK = 64
+_THREADS = max(1, min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
 
 
 class LinearDeformer:
@@ -175,11 +178,23 @@ class LinearDeformer:
         frames = off[None] if single else off
         out = np.empty((frames.shape[0],) + base.shape, dtype=base.dtype)
         if sp.issparse(w):
-            # sparse: one product per frame, added in place where vertices can move
+            # sparse: one product per frame, added in place where vertices can move; scipy's
+            # sparse kernels and numpy's ufuncs release the GIL, so long batches use threads
             full, mask = self._sparse_full_rows()
-            for f in range(frames.shape[0]):
-                out[f] = base
-                np.add(out[f], full @ frames[f], out=out[f], where=mask)
+
+            def run(lo: int, hi: int) -> None:
+                for f in range(lo, hi):
+                    out[f] = base
+                    np.add(out[f], full @ frames[f], out=out[f], where=mask)
+
+            n = frames.shape[0]
+            workers = min(_THREADS, max(1, n // _FRAME_BLOCK))
+            if workers == 1:
+                run(0, n)
+            else:
+                cuts = np.linspace(0, n, workers + 1).astype(int)
+                with ThreadPoolExecutor(workers) as pool:
+                    list(pool.map(run, cuts[:-1], cuts[1:]))
         elif rows is None:
             # dense: per coordinate, (frames, H) @ (H, V) with contiguous operands for BLAS
             wt = w.T
