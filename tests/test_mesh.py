@@ -44,8 +44,8 @@ def test_ply_and_glb_keep_vertex_order(tmp_path, base_face, suffix):
     back = load_mesh(tmp_path / f"face{suffix}")
     assert back.n_vertices >= base_face.n_vertices
     np.testing.assert_allclose(back.vertices[: base_face.n_vertices], base_face.vertices, atol=1e-6)
+    np.testing.assert_allclose(back.uv[: base_face.n_vertices], base_face.uv, atol=1e-6)
     if suffix == ".glb":
-        np.testing.assert_allclose(back.uv[: base_face.n_vertices], base_face.uv, atol=1e-6)
         assert back.texture is not None and back.texture.shape[:2] == base_face.texture.shape[:2]
 
 

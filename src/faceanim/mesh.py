@@ -422,7 +422,11 @@ def _unfan(faces: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
 def _save_ply(m: Mesh, path: Path) -> list[Path]:
     import trimesh
 
-    tm = trimesh.Trimesh(m.vertices, m.faces, process=False, validate=False)
+    visual = None
+    if m.uv is not None and np.array_equal(m.face_uv, m.faces):
+        # one UV per vertex (no seams): PLY carries it as the s, t vertex properties
+        visual = trimesh.visual.TextureVisuals(uv=m.uv)
+    tm = trimesh.Trimesh(m.vertices, m.faces, process=False, validate=False, visual=visual)
     with atomic_output(path) as tmp:
         tm.export(str(tmp), file_type="ply")
     return [path]
