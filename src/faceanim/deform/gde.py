@@ -98,6 +98,7 @@ def influence_region(adjacency: sp.csr_matrix, vertices: np.ndarray, root: int, 
     indptr, indices = adjacency.indptr, adjacency.indices
     seen = np.zeros(n, dtype=bool)
     seen[root] = True
+    stamp = np.empty(n, dtype=np.int64)
     frontier = np.array([root])
     depth = 0
     radius2 = float(extent) ** 2
@@ -107,8 +108,11 @@ def influence_region(adjacency: sp.csr_matrix, vertices: np.ndarray, root: int, 
         starts, stops = indptr[frontier], indptr[frontier + 1]
         counts = stops - starts
         idx = np.repeat(starts - np.r_[0, np.cumsum(counts)[:-1]], counts) + np.arange(counts.sum())
-        nb = np.unique(indices[idx])
+        nb = indices[idx]
         nb = nb[~seen[nb]]
+        # drop repeats without sorting: keep the occurrence whose position the stamp kept
+        stamp[nb] = np.arange(nb.size)
+        nb = nb[stamp[nb] == np.arange(nb.size)]
         if metric == "euclidean":
             d = vertices[nb] - control
             nb = nb[(d * d).sum(1) <= radius2]
@@ -174,7 +178,7 @@ def bind_element(mesh, element: GeometryDeformationElement) -> BoundElement:
     moving = np.setdiff1d(region, boundary, assume_unique=True)
     centres = np.vstack([control, mesh.vertices[anchors]])
     system = RadialBasis(centres, e.kernel, e.smoothing, e.stiffness)
-    w = system.weights(mesh.vertices[moving])[:, 0]
+    w = system.weights(mesh.vertices[moving], column=0)
     return BoundElement(e, root, region, boundary, anchors, moving, w)
 
 

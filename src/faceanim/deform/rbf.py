@@ -215,12 +215,16 @@ class RadialBasis:
         rhs[: self._n] = v
         return la.lu_solve(self._lu, rhs, check_finite=False)
 
-    def weights(self, points) -> np.ndarray:
-        """(M, N) matrix mapping values at the centres to values at ``points``."""
+    def weights(self, points, column: int | None = None) -> np.ndarray:
+        """(M, N) matrix mapping values at the centres to values at ``points``.
+
+        With ``column``, only that centre's weights, shape (M,).
+        """
         p = np.asarray(points, dtype=np.float64)
-        out = np.empty((p.shape[0], self._n))
+        inverse = self._inverse if column is None else self._inverse[:, column]
+        out = np.empty((p.shape[0],) + inverse.shape[1:])
         for a in range(0, p.shape[0], _EVAL_CHUNK):
-            out[a:a + _EVAL_CHUNK] = self.basis(p[a:a + _EVAL_CHUNK]) @ self._inverse
+            out[a:a + _EVAL_CHUNK] = self.basis(p[a:a + _EVAL_CHUNK]) @ inverse
         return out
 
     def __call__(self, points, values) -> np.ndarray:
