@@ -64,6 +64,7 @@ class LinearDeformer:
         self.rest = rest
         self.weights = weights
         self.rows = rows
+        self._full = self._mask = None  # full-height CSR for sparse evaluation, built on first use
         self.handle_names = list(handle_names) if handle_names is not None else None
         if self.handle_names is not None and len(self.handle_names) != weights.shape[1]:
             raise DeformError("handle_names must give one name per handle")
@@ -155,7 +156,7 @@ class LinearDeformer:
         itself; a full-height CSR gives a contiguous (V, 3) result that is added only where
         ``mask`` is set, so unmoved vertices keep their exact bits (even -0.0).
         """
-        if getattr(self, "_full", None) is None:
+        if self._full is None:
             w = self.weights
             if self.rows is None:
                 full = w
