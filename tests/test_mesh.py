@@ -58,23 +58,25 @@ def test_glb_with_seams_keeps_the_original_vertices_first(tmp_path):
     np.testing.assert_allclose(uv[faces], m.uv[m.face_uv])
 
 
-def test_bad_mesh_files(tmp_path):
+BAD_FILES = {
+    "empty.obj": ("# nothing\n", "empty"),
+    "nan.obj": ("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n", "NaN or infinite coordinates.*index 1"),
+    "broken.obj": ("v 0 0 zero\nf 1 2 3\n", "malformed"),
+    "range.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "missing vertices"),
+    "x.stl": ("solid\n", "unsupported format"),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_FILES))
+def test_bad_mesh_files(tmp_path, name):
+    text, message = BAD_FILES[name]
+    (tmp_path / name).write_text(text)
+    with pytest.raises(MeshError, match=message):
+        load_mesh(tmp_path / name)
+
+
+def test_missing_file_and_point_cloud(tmp_path):
     with pytest.raises(MeshError, match="does not exist"):
         load_mesh(tmp_path / "missing.obj")
-    (tmp_path / "empty.obj").write_text("# nothing\n")
-    with pytest.raises(MeshError, match="empty"):
-        load_mesh(tmp_path / "empty.obj")
-    (tmp_path / "nan.obj").write_text("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n")
-    with pytest.raises(MeshError, match="NaN or infinite coordinates.*index 1"):
-        load_mesh(tmp_path / "nan.obj")
-    (tmp_path / "broken.obj").write_text("v 0 0 zero\nf 1 2 3\n")
-    with pytest.raises(MeshError, match="malformed"):
-        load_mesh(tmp_path / "broken.obj")
-    (tmp_path / "range.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
-    with pytest.raises(MeshError, match="missing vertices"):
-        load_mesh(tmp_path / "range.obj")
-    (tmp_path / "x.stl").write_text("solid\n")
-    with pytest.raises(MeshError, match="unsupported format"):
-        load_mesh(tmp_path / "x.stl")
     with pytest.raises(MeshError, match="no triangles"):
         Mesh(np.zeros((3, 3)), np.zeros((0, 3), dtype=int))

@@ -179,11 +179,8 @@ def detect_landmarks(mesh, scheme: str = "mediapipe478", forward: str = "+z", up
     ``forward`` and ``up`` say which mesh axes the face looks along and points up (FaceWarehouse,
     ICT and faceanim's default face: +z and +y).
     """
-    from .render import view_rotation
-
     if scheme not in SCHEMES:
         raise LandmarkError(f"unknown landmark scheme '{scheme}'; choose one of: {', '.join(SCHEMES)}")
-    rot = view_rotation(forward, up)
     with detection_view(mesh, forward, up, size) as r:
         image = r.render()
         try:
@@ -194,7 +191,7 @@ def detect_landmarks(mesh, scheme: str = "mediapipe478", forward: str = "+z", up
                 "pass --forward/--up if the face points elsewhere, or give landmarks in a JSON file)"
             ) from None
         origins, dirs = r.pixel_rays(pts2d[:, :2])
-    pos, tri = _cast_onto_surface(mesh, origins, dirs, rot)
+    pos, tri = _cast_onto_surface(mesh, origins, dirs, r.rotation)
     bary = mesh.barycentric(pos, tri)
     names = [n for n, _ in SCHEMES[scheme]]
     idx = np.array([i for _, i in SCHEMES[scheme]])
@@ -218,14 +215,12 @@ def pick_surface_points(mesh, xy, forward: str = "+z", up: str = "+y") -> tuple[
     ``xy`` (N, 2) are normalised coordinates in the front view that ``faceanim landmarks
     --image`` saves. Returns (positions (N, 3), triangle ids (N,)).
     """
-    from .render import view_rotation
-
     xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
-    if xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+    if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
         raise LandmarkError(f"picks must be finite (N, 2) image coordinates, got shape {xy.shape}")
     with detection_view(mesh, forward, up) as r:
         origins, dirs = r.pixel_rays(xy)
-    return _cast_onto_surface(mesh, origins, dirs, view_rotation(forward, up))
+    return _cast_onto_surface(mesh, origins, dirs, r.rotation)
 
 
 def _cast_onto_surface(mesh, origins, dirs, rot) -> tuple[np.ndarray, np.ndarray]:
@@ -237,13 +232,18 @@ def _cast_onto_surface(mesh, origins, dirs, rot) -> tuple[np.ndarray, np.ndarray
     normal = np.cross(fv[:, 1] - fv[:, 0], fv[:, 2] - fv[:, 0])
     hit &= (normal * dirs).sum(1) < 0
     if (~hit).any():
-        # rays through a gap: take the nearest front-most vertex
+        # rays through a gap: the front-most vertex among those whose projection lies within
+        # half an edge of the ray's closest one
+        from scipy.spatial import cKDTree
+
         view = mesh.vertices @ rot.T
+        tree = cKDTree(view[:, :2])
         o = origins[~hit] @ rot.T
-        d2 = ((view[None, :, :2] - o[:, None, :2]) ** 2).sum(-1)
-        near = d2 <= d2.min(1, keepdims=True) + (0.5 * mesh.mean_edge_length) ** 2
-        score = np.where(near, view[None, :, 2], -np.inf)
-        v = score.argmax(1)
+        dist, _ = tree.query(o[:, :2])
+        v = np.empty(len(o), dtype=np.int64)
+        for k, (point, d) in enumerate(zip(o[:, :2], dist)):
+            near = np.asarray(tree.query_ball_point(point, d + 0.5 * mesh.mean_edge_length))
+            v[k] = near[view[near, 2].argmax()]
         pos[~hit] = mesh.vertices[v]
         tri[~hit] = _vertex_triangle(mesh)[v]
     return pos, tri
