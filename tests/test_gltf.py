@@ -15,20 +15,32 @@ VALIDATOR = ROOT / "tools" / "validate_gltf.js"
 
 
 def _accessor(gltf, index):
+    """Decode an accessor by hand from the glTF spec (dense or sparse)."""
     acc = gltf.accessors[index]
-    view = gltf.bufferViews[acc.bufferView]
     blob = gltf.binary_blob()
     n = {"SCALAR": 1, "VEC2": 2, "VEC3": 3}[acc.type]
     dtype = np.float32 if acc.componentType == pygltflib.FLOAT else np.uint32
-    a = np.frombuffer(blob, dtype=dtype, count=acc.count * n, offset=view.byteOffset)
+    if acc.bufferView is None:
+        a = np.zeros(acc.count * n, dtype=dtype)
+    else:
+        view = gltf.bufferViews[acc.bufferView]
+        a = np.frombuffer(blob, dtype=dtype, count=acc.count * n, offset=view.byteOffset).copy()
+    if acc.sparse is not None:
+        sp = acc.sparse
+        idx = np.frombuffer(blob, dtype=np.uint32, count=sp.count,
+                            offset=gltf.bufferViews[sp.indices.bufferView].byteOffset)
+        val = np.frombuffer(blob, dtype=dtype, count=sp.count * n,
+                            offset=gltf.bufferViews[sp.values.bufferView].byteOffset)
+        a.reshape(acc.count, n)[idx] = val.reshape(-1, n)
     return a.reshape(acc.count, n) if n > 1 else a
 
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory, base_face):
     rng = np.random.default_rng(0)
-    shapes = {"smile": rng.normal(scale=1e-3, size=base_face.vertices.shape),
-              "A": rng.normal(scale=1e-3, size=base_face.vertices.shape)}
+    local = np.zeros(base_face.vertices.shape)
+    local[100:160] = rng.normal(scale=1e-3, size=(60, 3))  # stored as a sparse accessor
+    shapes = {"smile": rng.normal(scale=1e-3, size=base_face.vertices.shape), "A": local}
     times = np.linspace(0, 2, 9)
     weights = np.stack([np.sin(times) ** 2, np.cos(times) ** 2], axis=1)
     path = tmp_path_factory.mktemp("gltf") / "face.glb"
@@ -48,6 +60,7 @@ def test_morph_targets_and_animation_read_back(exported, base_face):
     np.testing.assert_allclose(_accessor(gltf, sampler.input), times, atol=1e-6)
     np.testing.assert_allclose(_accessor(gltf, sampler.output).reshape(-1, 2), weights, atol=1e-6)
     assert gltf.animations[0].channels[0].target.path == "weights"
+    assert gltf.accessors[prim.targets[1]["POSITION"]].sparse.count == 60
     assert gltf.images and gltf.materials[0].pbrMetallicRoughness.baseColorTexture.index == 0
 
 

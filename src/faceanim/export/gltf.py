@@ -1,8 +1,9 @@
 """Binary glTF 2.0 (GLB) export: mesh, texture, morph targets and their animation.
 
 Every blendshape becomes a morph target (names in ``mesh.extras.targetNames``, the convention
-Blender, three.js and Babylon read); an animation drives the morph weights with linear
-interpolation. glTF stores one UV per vertex, so vertices on UV seams are duplicated; the
+Blender, three.js and Babylon read); a target that moves less than half of the vertices is
+stored as a sparse accessor (only the moving rows). An animation drives the morph weights with
+linear interpolation. glTF stores one UV per vertex, so vertices on UV seams are duplicated; the
 first V vertices are the source mesh's, in its order, and the seam copies follow
 (``primitive.extras.sourceVertex`` maps every glTF vertex back to the source vertex).
 """
@@ -43,6 +44,26 @@ class _Buffer:
             a = array.reshape(count, -1)
             acc.min = [float(x) for x in a.min(0)]
             acc.max = [float(x) for x in a.max(0)]
+        self.accessors.append(acc)
+        return len(self.accessors) - 1
+
+    def add_sparse(self, array: np.ndarray, rows: np.ndarray) -> int:
+        """A VEC3 float accessor that is zero except at ``rows`` (glTF sparse accessor)."""
+        views = []
+        for part in (rows.astype(np.uint32), np.ascontiguousarray(array[rows], dtype=np.float32)):
+            while len(self.data) % 4:
+                self.data.append(0)
+            raw = part.tobytes()
+            self.views.append(g.BufferView(buffer=0, byteOffset=len(self.data), byteLength=len(raw)))
+            self.data.extend(raw)
+            views.append(len(self.views) - 1)
+        acc = g.Accessor(componentType=g.FLOAT, count=array.shape[0], type=g.VEC3,
+                         min=[float(x) for x in array.min(0)], max=[float(x) for x in array.max(0)])
+        acc.byteOffset = None  # no bufferView: the base values are zeros
+        if rows.size:
+            acc.sparse = g.Sparse(count=int(rows.size),
+                                  indices=g.AccessorSparseIndices(bufferView=views[0], componentType=g.UNSIGNED_INT),
+                                  values=g.AccessorSparseValues(bufferView=views[1]))
         self.accessors.append(acc)
         return len(self.accessors) - 1
 
@@ -88,7 +109,12 @@ def write_gltf(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np
     targets = []
     for name in names:
         d = np.asarray(blendshapes[name], dtype=np.float32)[source]
-        targets.append(g.Attributes(POSITION=buf.add(d, g.FLOAT, g.VEC3, g.ARRAY_BUFFER, minmax=True)))
+        moved = np.flatnonzero(np.any(d != 0, axis=1))
+        if moved.size < 0.5 * len(d):
+            # local expressions (GDEs) move a small part of the face: store only those rows
+            targets.append(g.Attributes(POSITION=buf.add_sparse(d, moved)))
+        else:
+            targets.append(g.Attributes(POSITION=buf.add(d, g.FLOAT, g.VEC3, g.ARRAY_BUFFER, minmax=True)))
 
     gltf = g.GLTF2(asset=g.Asset(generator="faceanim", version="2.0"))
     material = g.Material(name="skin", doubleSided=True,
