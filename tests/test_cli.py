@@ -110,3 +110,21 @@ def test_deform_gde_from_a_2d_pick(tmp_path, mesh_file, base_face):
     out = load_mesh(tmp_path / "out.obj")
     moved = np.linalg.norm(out.vertices - base_face.vertices, axis=1)
     assert moved.argmax() == 152 or moved[152] > 0.5 * moved.max()
+
+
+def test_landmarks_from_a_file_override_detection(tmp_path, mesh_file, base_face):
+    given = {"scheme": "custom", "points": [
+        {"name": "nose_tip", "index": 4, "position": (base_face.vertices[4] + [0, 0, 0.002]).tolist()},
+        {"name": "chin", "position": base_face.vertices[152].tolist()}]}
+    src = _write(tmp_path, "given.json", given)
+    out = tmp_path / "lm.json"
+    assert main(["landmarks", str(mesh_file), "--from", str(src), "-o", str(out)]) == 0
+    pts = {p["name"]: p for p in json.loads(out.read_text())["points"]}
+    # snapped onto the surface: the nose point moves back onto the skin, the chin stays
+    assert np.linalg.norm(np.array(pts["nose_tip"]["position"]) - base_face.vertices[4]) < 0.002
+    np.testing.assert_allclose(pts["chin"]["position"], base_face.vertices[152], atol=1e-9)
+    tri = base_face.faces[pts["chin"]["triangle"]]
+    assert 152 in tri
+    far = _write(tmp_path, "far.json", {"points": [{"name": "x", "position": [0, 0, 3]}]})
+    assert main(["landmarks", str(mesh_file), "--from", str(far), "-o", str(tmp_path / "f.json")]) == 2
+    assert not (tmp_path / "f.json").exists()

@@ -24,13 +24,19 @@ def _cmd_demo(args) -> None:
 
 
 def _cmd_landmarks(args) -> None:
-    from .landmarks import detect_landmarks
+    from .landmarks import Landmarks, detect_landmarks
     from .mesh import load_mesh
     from .render import save_png
 
     mesh = load_mesh(args.mesh)
-    lms, image = detect_landmarks(mesh, scheme=args.scheme, forward=args.forward, up=args.up,
-                                  return_image=True)
+    if args.given:
+        # landmarks from a file override detection: snap them onto this mesh
+        lms, image = Landmarks.load(args.given).attached_to(mesh), None
+        if args.image:
+            raise FaceAnimError("--image shows the detection render; it does not apply with --from")
+    else:
+        lms, image = detect_landmarks(mesh, scheme=args.scheme, forward=args.forward, up=args.up,
+                                      return_image=True)
     lms.save(args.output)
     print(f"wrote {len(lms)} '{lms.scheme}' landmarks to {args.output}")
     if args.image:
@@ -128,6 +134,8 @@ def build_parser() -> argparse.ArgumentParser:
     lm.add_argument("--forward", default="+z", help="axis the face looks along (default +z)")
     lm.add_argument("--up", default="+y", help="axis pointing up (default +y)")
     lm.add_argument("--image", type=_output_path([".png"]), help="also save the render used for detection")
+    lm.add_argument("--from", dest="given", metavar="JSON",
+                    help="take landmarks from this file instead of detecting them (snapped onto the mesh)")
     lm.set_defaults(func=_cmd_landmarks)
 
     df = sub.add_parser("deform", help="deform a mesh with RBF handles or GDEs from a JSON file")

@@ -148,6 +148,23 @@ class Landmarks:
     def load(cls, path: str | os.PathLike) -> "Landmarks":
         return cls.from_dict(read_json(path, "landmark file"), str(path))
 
+    def attached_to(self, mesh, max_distance: float = 0.05) -> "Landmarks":
+        """These landmarks snapped to ``mesh``'s surface, with triangles and barycentrics.
+
+        Used when landmarks come from a file instead of detection. A point farther from the
+        surface than ``max_distance`` times the mesh's bounding-box diagonal is refused.
+        """
+        pos, dist, tri = mesh.closest_points(self.positions)
+        limit = max_distance * mesh.bounding_box_diagonal
+        far = np.flatnonzero(dist > limit)
+        if far.size:
+            k = far[0]
+            raise LandmarkError(
+                f"landmark '{self.names[k]}' is {dist[k]:.4g} from the surface of '{mesh.name}' (more than "
+                f"{limit:.4g}); are the landmarks for this mesh and in its units?")
+        return Landmarks(self.scheme, list(self.names), self.indices.copy(), pos, np.asarray(tri),
+                         mesh.barycentric(pos, tri), self.detected_on)
+
 
 def detect_landmarks_in_image(rgb: np.ndarray) -> np.ndarray:
     """MediaPipe face mesh on an RGB image: (478, 3) points, x and y normalised to [0, 1].
