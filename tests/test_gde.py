@@ -119,3 +119,15 @@ def test_sparse_batch_equals_frame_by_frame(face, face_landmarks, rng):
     batch = d.apply(frames)
     for f in [0, 149, 150, 299]:
         assert np.array_equal(batch[f], d.apply(frames[f]))
+
+
+def test_unmoved_vertices_keep_their_bits_even_negative_zero(face, face_landmarks):
+    rest = face.vertices.copy()
+    far = np.flatnonzero(np.linalg.norm(rest - face_landmarks["chin"], axis=1) > 0.05)[:10]
+    rest[far, 0] = -0.0
+    from faceanim.mesh import Mesh
+
+    m = Mesh(rest, face.faces)
+    d = bind_gdes(m, [GDE(tuple(face_landmarks["chin"]), 0.02, "euclidean")])
+    for out in (d.apply(np.array([[0, -0.01, 0]])), d.apply(np.zeros((200, 1, 3)) + [0, -0.01, 0])[150]):
+        assert np.array_equal(out[far].view(np.uint64), rest[far].view(np.uint64))

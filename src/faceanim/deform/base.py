@@ -185,10 +185,16 @@ class LinearDeformer:
             # sparse kernels and numpy's ufuncs release the GIL, so long batches use threads
             full, mask = self._sparse_full_rows()
 
+            # rows nothing moves get + 0.0, which keeps every bit except the sign of -0.0:
+            # restore those few coordinates afterwards instead of masking every add
+            flat_base = base.reshape(-1)
+            negzero = np.flatnonzero((flat_base == 0) & np.signbit(flat_base) & ~mask.reshape(-1))
+
             def run(lo: int, hi: int) -> None:
                 for f in range(lo, hi):
-                    out[f] = base
-                    np.add(out[f], full @ frames[f], out=out[f], where=mask)
+                    np.add(base, full @ frames[f], out=out[f])
+                    if negzero.size:
+                        out[f].reshape(-1)[negzero] = -0.0
 
             n = frames.shape[0]
             workers = min(_THREADS, max(1, n // _FRAME_BLOCK))
