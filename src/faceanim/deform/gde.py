@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.csgraph as csgraph
 
 from ..errors import DeformError
 from .base import LinearDeformer
@@ -89,22 +90,38 @@ class BoundElement:
     weights: np.ndarray       # (len(moving),) displacement per unit control offset
 
 
-def influence_region(adjacency: sp.csr_matrix, vertices: np.ndarray, root: int, control: np.ndarray,
-                     extent: float, metric: str) -> tuple[np.ndarray, np.ndarray]:
-    """Breadth-first search from ``root``; returns (region vertices, boundary vertices)."""
-    n = adjacency.shape[0]
+def influence_region(mesh, root: int, control: np.ndarray, extent: float,
+                     metric: str) -> tuple[np.ndarray, np.ndarray]:
+    """Breadth-first search from ``root`` over mesh edges; returns (region, boundary vertices).
+
+    ``edges``: every vertex at most ``extent`` edges from the root. ``euclidean``: every vertex
+    the search reaches through vertices within distance ``extent`` of the control point, i.e.
+    the root's connected component in the graph of that ball (found in one step from the
+    k-d tree's ball query, which is faster than walking the search level by level).
+    The boundary (the search tree's leaves) is the region's vertices with a neighbour outside.
+    """
     if metric not in METRICS:
         raise DeformError(f"unknown metric '{metric}'; choose one of: {', '.join(METRICS)}")
+    adjacency = mesh.adjacency
+    degree = np.diff(adjacency.indptr)
+    if metric == "euclidean":
+        ball = np.asarray(mesh.kdtree.query_ball_point(control, float(extent)), dtype=np.int64)
+        ball = np.union1d(ball, [root])
+        sub = adjacency[ball][:, ball]
+        _, label = csgraph.connected_components(sub, directed=False)
+        keep = label == label[np.searchsorted(ball, root)]
+        region = ball[keep]
+        # a region vertex's neighbours inside the ball are in its component, so its degree in
+        # the ball graph counts exactly its neighbours inside the region
+        return region, region[np.diff(sub.indptr)[keep] < degree[region]]
+
+    n = adjacency.shape[0]
     indptr, indices = adjacency.indptr, adjacency.indices
     seen = np.zeros(n, dtype=bool)
     seen[root] = True
     stamp = np.empty(n, dtype=np.int64)
     frontier = np.array([root])
-    depth = 0
-    radius2 = float(extent) ** 2
-    while frontier.size:
-        if metric == "edges" and depth >= extent:
-            break
+    for _ in range(int(extent)):
         starts, stops = indptr[frontier], indptr[frontier + 1]
         counts = stops - starts
         idx = np.repeat(starts - np.r_[0, np.cumsum(counts)[:-1]], counts) + np.arange(counts.sum())
@@ -113,18 +130,14 @@ def influence_region(adjacency: sp.csr_matrix, vertices: np.ndarray, root: int, 
         # drop repeats without sorting: keep the occurrence whose position the stamp kept
         stamp[nb] = np.arange(nb.size)
         nb = nb[stamp[nb] == np.arange(nb.size)]
-        if metric == "euclidean":
-            d = vertices[nb] - control
-            nb = nb[(d * d).sum(1) <= radius2]
+        if not nb.size:
+            break
         seen[nb] = True
         frontier = nb
-        depth += 1
     region = np.flatnonzero(seen)
-    # leaves of the search: region vertices with at least one neighbour outside the region
     sub = adjacency[region]
     inside = sub.astype(np.int32) @ seen.astype(np.int32)
-    boundary = region[inside < np.diff(sub.indptr)]
-    return region, boundary
+    return region, region[inside < degree[region]]
 
 
 def sample_anchors(vertices: np.ndarray, boundary: np.ndarray, region: np.ndarray, control: np.ndarray,
@@ -168,7 +181,7 @@ def bind_element(mesh, element: GeometryDeformationElement) -> BoundElement:
                 f"surface (more than {limit:.4g}); put control points on or near the mesh"
             )
     root = int(root)
-    region, boundary = influence_region(mesh.adjacency, mesh.vertices, root, control, extent, e.metric)
+    region, boundary = influence_region(mesh, root, control, extent, e.metric)
     boundary = boundary[boundary != root]
     if region.size == 1 or boundary.size == 0:
         # no anchors: the element reduces to moving its vertices rigidly (vertex manipulation)
