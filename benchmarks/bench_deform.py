@@ -28,8 +28,16 @@ from faceanim.default_face import default_face  # noqa: E402
 from faceanim.mesh import Mesh  # noqa: E402
 
 
-def best(fn, repeat=7, number=1):
-    """Best mean time of ``number`` calls over ``repeat`` runs (seconds)."""
+def best(fn, repeat=7, number=1, warmup=0.05):
+    """Best mean time of ``number`` calls over ``repeat`` runs (seconds).
+
+    Calls ``fn`` for ``warmup`` seconds first: right after a large solve, OpenBLAS's worker
+    threads were seen to slow small products 10-20x for a short while, which is not the
+    steady state of an animation loop.
+    """
+    end = time.perf_counter() + warmup
+    while time.perf_counter() < end:
+        fn()
     times = []
     for _ in range(repeat):
         t = time.perf_counter()
@@ -71,7 +79,7 @@ def main():
     def scipy_frame(k=0):
         return RBFInterpolator(handles, frames[k], kernel="thin_plate_spline")(mesh.vertices)
 
-    base = best(scipy_frame, repeat=3)
+    base = best(scipy_frame, repeat=3, warmup=0)
     ref = scipy_frame(0)
 
     d64 = bind_rbf(mesh.vertices, handles, "thin_plate_spline", smoothing=0.0)
@@ -96,7 +104,7 @@ def main():
         off = frames[0].astype(d.dtype)
         one = best(lambda d=d, off=off: d.apply(off), repeat=20)
         many_off = frames.astype(d.dtype)
-        many = best(lambda d=d, many_off=many_off: d.apply(many_off), repeat=3)
+        many = best(lambda d=d, many_off=many_off: d.apply(many_off), repeat=3, warmup=0)
         rows.append([name, ms(one), f"{many:.3f} s", f"{base / one:.0f}x", err, f"{d.nbytes() / 2**20:.1f} MiB"])
     table(rows, ["method", "1 frame", "1000 frames", "speed-up/frame", "max rel err vs scipy", "operator"])
     print(f"GDE rig: {len(rig.moving_vertices)} of {V} vertices can move; "
