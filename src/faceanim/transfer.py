@@ -1,0 +1,299 @@
+"""Landmark-driven expression transfer between faces (Erdogdu 2010, sections 5.5.3 and 5.6).
+
+1. *Learn* (5.5.3): the control points of the neutral source face are found on the expressive
+   scan of the same person, and their displacement vectors ``v_i = P'_i - P_i`` (eq. 5.6) are
+   kept. With the same topology (a registered scan) the points are followed exactly through
+   their triangles; otherwise by the thesis' landmark thin-plate spline from the neutral to the
+   expressive landmarks plus snapping to the nearest surface point.
+2. *Animate* (5.6): the control points are placed on the target from its landmarks, each one
+   moves by ``v_i * m`` (upper face) or ``v_i * m * s_t / s_s`` (lower face, the mouth-width
+   ratio, eq. 5.8), and each face half is warped with its own interpolant, masked to its half.
+
+Displacements are stored in the source face's own frame (x to the subject's left eye, y up,
+z forward) and divided by its inter-ocular distance (upper face) or mouth width (lower face),
+so they rotate and scale onto any target.
+
+Interpolants: ``tps`` is the thesis' 3D thin-plate spline ``f(x) = [1 x y z] A + sum w_i
+U(|P_i - x|)`` (eq. 4.19) over the half's control points plus fixed anchors on the face oval;
+``surface`` (default) is faceanim's biharmonic interpolation along the skin
+(:mod:`faceanim.deform.surface`), which does not couple the lips across the mouth or the lids
+across the eye.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .deform.rbf import RadialBasis, check_points
+from .deform.surface import bind_surface
+from .errors import DeformError, LandmarkError, MeshError
+from .facs import (FACE_OVAL, STABLE_LANDMARKS, ActionUnitError, ActionUnitLibrary, ControlPoints, FaceFrame,
+                   default_library, face_frame, free_region, place_control_points, region_weights)
+from .mesh import Mesh
+from .rig import Rig
+
+METHODS = ("surface", "tps")
+
+
+def landmark_tps(source, target, what: str = "landmarks") -> RadialBasis:
+    """The thesis' 3D thin-plate spline through landmark pairs (eqs. 4.11-4.19).
+
+    Returns a callable ``f(points)`` mapping points near ``source`` to points near ``target``.
+    Repeated or coplanar landmarks make the system singular: refused with a clear error.
+    """
+    src = check_points(source, f"source {what}", min_count=5)
+    dst = check_points(target, f"target {what}", min_count=5)
+    if src.shape != dst.shape:
+        raise LandmarkError(f"source and target {what} differ in count: {len(src)} vs {len(dst)}")
+    centred = src - src.mean(0)
+    sv = np.linalg.svd(centred, compute_uv=False)
+    if sv[2] <= 1e-6 * sv[0]:
+        raise LandmarkError(f"the source {what} are coplanar (or collinear): a 3D thin-plate spline needs "
+                            "landmarks off one plane (eyes, nose tip and mouth are not)")
+    try:
+        system = RadialBasis(src, "thin_plate_spline", smoothing=0.0)
+    except DeformError as exc:
+        raise LandmarkError(f"{what}: {exc}") from None
+    coeff = system.coefficients(dst - src)
+
+    class _Warp:
+        def __call__(self, points):
+            p = np.asarray(points, dtype=np.float64)
+            return p + system.basis(p) @ coeff
+
+    return _Warp()
+
+
+def rigid_align(moving: np.ndarray, fixed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R and translation t that best map ``moving`` onto ``fixed`` (Kabsch)."""
+    a, b = np.asarray(moving, dtype=np.float64), np.asarray(fixed, dtype=np.float64)
+    ca, cb = a.mean(0), b.mean(0)
+    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return r, cb - r @ ca
+
+
+def _stable_vertices(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame) -> np.ndarray:
+    """Vertices for rigid alignment of two scans: the skull outside the expressive region."""
+    free = free_region(mesh, lm478, frame)
+    out = np.flatnonzero(~free)
+    return out if len(out) >= 50 else np.zeros(0, dtype=np.int64)
+
+
+@dataclass
+class ExpressionSample:
+    """Displacements of the control points learned from one neutral/expressive pair, in the
+    source's normalised frame (see module docstring)."""
+
+    names: list[str]
+    displacements: np.ndarray  # (N, 3), units: IOD (upper) or mouth width (lower)
+    source: str = ""
+    method: str = "correspondence"
+
+    def subset(self, names) -> "ExpressionSample":
+        where = {n: k for k, n in enumerate(self.names)}
+        return ExpressionSample(list(names), self.displacements[[where[n] for n in names]], self.source, self.method)
+
+    def to_dict(self) -> dict:
+        return {"source": self.source, "method": self.method,
+                "points": {n: [round(float(x), 6) for x in d] for n, d in zip(self.names, self.displacements)}}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ExpressionSample":
+        names = list(d["points"])
+        return cls(names, np.array([d["points"][n] for n in names], dtype=np.float64).reshape(-1, 3),
+                   d.get("source", ""), d.get("method", ""))
+
+
+def _normaliser(names, library: ActionUnitLibrary, frame: FaceFrame) -> np.ndarray:
+    return np.array([frame.iod if library.control_points[n].region == "upper" else frame.mouth_width
+                     for n in names])
+
+
+def learn_expression(neutral: Mesh, expressive: Mesh, neutral_lm478: np.ndarray,
+                     expressive_lm478: np.ndarray | None = None, library: ActionUnitLibrary | None = None,
+                     method: str = "auto") -> ExpressionSample:
+    """Displacements of every control point from a neutral scan to an expressive scan of the
+    same person (thesis 5.5.3).
+
+    ``method``: ``correspondence`` (same topology: follow the points' triangles after rigid
+    alignment on the skull), ``landmarks`` (the thesis: landmark TPS neutral -> expressive and
+    snapping to the expressive surface; needs ``expressive_lm478``), or ``auto``.
+    """
+    library = library or default_library()
+    frame = face_frame(neutral_lm478)
+    points = place_control_points(neutral, neutral_lm478, library)
+    same = neutral.n_vertices == expressive.n_vertices and np.array_equal(neutral.faces, expressive.faces)
+    if method == "auto":
+        method = "correspondence" if same else "landmarks"
+    if method == "correspondence":
+        if not same:
+            raise MeshError(f"'{expressive.name}' has another topology than '{neutral.name}' "
+                            f"({expressive.n_vertices} vs {neutral.n_vertices} vertices); use method 'landmarks'")
+        stable = _stable_vertices(neutral, neutral_lm478, frame)
+        if len(stable):
+            r, t = rigid_align(expressive.vertices[stable], neutral.vertices[stable])
+        else:
+            idx = list(STABLE_LANDMARKS)
+            r, t = rigid_align(points_on_landmarks(expressive, neutral, neutral_lm478)[idx],
+                               np.asarray(neutral_lm478)[idx])
+        moved = points.on(expressive.vertices @ r.T + t, neutral.faces)
+    elif method == "landmarks":
+        if expressive_lm478 is None:
+            raise LandmarkError("learning without a shared topology needs the expressive scan's landmarks")
+        idx = list(STABLE_LANDMARKS)
+        r, t = rigid_align(np.asarray(expressive_lm478)[idx], np.asarray(neutral_lm478)[idx])
+        exp_lm = np.asarray(expressive_lm478) @ r.T + t
+        warp = landmark_tps(neutral_lm478, exp_lm)
+        aligned = expressive.with_vertices(expressive.vertices @ r.T + t)
+        moved, _, _ = aligned.closest_points(warp(points.positions))
+    else:
+        raise DeformError(f"unknown learning method '{method}'; choose correspondence, landmarks or auto")
+    d = frame.vectors_to_local(moved - points.positions) / _normaliser(points.names, library, frame)[:, None]
+    return ExpressionSample(points.names, d, f"{neutral.name} -> {expressive.name}", method)
+
+
+def points_on_landmarks(expressive: Mesh, neutral: Mesh, lm478: np.ndarray) -> np.ndarray:
+    """The neutral landmarks followed onto a same-topology expressive mesh."""
+    pos, _, tri = neutral.closest_points(lm478)
+    bary = neutral.barycentric(pos, tri)
+    return np.einsum("nk,nkd->nd", bary, expressive.vertices[neutral.faces[tri]])
+
+
+@dataclass
+class ActionUnitModel:
+    """Learned displacements per action unit: AU number -> sample over that AU's points."""
+
+    samples: dict[int, ExpressionSample] = field(default_factory=dict)
+    about: str = ""
+
+    def to_dict(self) -> dict:
+        return {"about": self.about, "action_units": {str(k): s.to_dict() for k, s in sorted(self.samples.items())}}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ActionUnitModel":
+        return cls({int(k): ExpressionSample.from_dict(v) for k, v in d["action_units"].items()}, d.get("about", ""))
+
+
+def default_model() -> ActionUnitModel:
+    """The built-in AU displacements (learned from real scans by scripts/learn_au_library.py)."""
+    import json
+    from importlib import resources
+
+    return ActionUnitModel.from_dict(json.loads(
+        resources.files("faceanim").joinpath("data", "au_displacements.json").read_text()))
+
+
+class ExpressionTransfer:
+    """A target face rigged with control points: turns learned displacements into blendshapes.
+
+    Binding (placement, region weights, the interpolants) happens once; every AU, side, emotion
+    or whole learned expression then costs one matrix product.
+    """
+
+    def __init__(self, target: Mesh, lm478: np.ndarray, library: ActionUnitLibrary | None = None,
+                 method: str = "surface", names=None):
+        if method not in METHODS:
+            raise DeformError(f"unknown transfer method '{method}'; choose one of: {', '.join(METHODS)}")
+        self.mesh = target
+        self.library = library or default_library()
+        self.lm = np.asarray(lm478, dtype=np.float64)
+        self.frame = face_frame(self.lm)
+        self.method = method
+        self.points: ControlPoints = place_control_points(target, self.lm, self.library, names)
+        self.free = free_region(target, self.lm, self.frame)
+        self.region = region_weights(target.vertices, self.lm, self.library, self.frame)
+        self.scale = _normaliser(self.points.names, self.library, self.frame)
+        self._regions = {r: np.array([self.library.control_points[n].region == r for n in self.points.names])
+                         for r in ("upper", "lower")}
+        self._bind()
+
+    def _bind(self):
+        names = self.points.names
+        if self.method == "surface":
+            deformer = bind_surface(self.mesh.vertices, self.mesh.faces, self.points.triangles,
+                                    self.points.barycentric, self.free, handle_names=names)
+            self._operators = {r: deformer for r in ("upper", "lower")}
+            return
+        # the thesis: one TPS per face half over that half's points plus fixed anchors on the oval
+        oval = self.lm[list(FACE_OVAL)]
+        self._operators = {}
+        rows = np.flatnonzero(self.free)
+        for r, sel in self._regions.items():
+            pts = self.points.positions[sel]
+            far = np.linalg.norm(oval[:, None] - pts[None], axis=2).min(1) > 0.05 * self.frame.iod
+            handles = np.vstack([pts, oval[far]])
+            system = RadialBasis(handles, "thin_plate_spline", smoothing=0.0)
+            w = system.weights(self.mesh.vertices[rows])[:, : len(pts)]
+            full = np.zeros((len(rows), len(names)))
+            full[:, np.flatnonzero(sel)] = w
+            from .deform.base import LinearDeformer
+
+            self._operators[r] = LinearDeformer(self.mesh.vertices, full, rows, handle_names=names)
+
+    def offsets(self, sample: ExpressionSample, magnitude: float = 1.0) -> np.ndarray:
+        """Handle offsets (N, 3) in mesh units for a sample (points it lacks stay still)."""
+        where = {n: k for k, n in enumerate(sample.names)}
+        d = np.zeros((len(self.points.names), 3))
+        for k, n in enumerate(self.points.names):
+            if n in where:
+                d[k] = sample.displacements[where[n]]
+        return self.frame.vectors_to_mesh(d * self.scale[:, None]) * magnitude
+
+    def delta(self, sample: ExpressionSample, magnitude: float = 1.0) -> np.ndarray:
+        """(V, 3) vertex displacement of the target for one sample at magnitude m."""
+        d = self.offsets(sample, magnitude)
+        out = np.zeros_like(self.mesh.vertices)
+        for r in ("upper", "lower"):
+            dr = np.where(self._regions[r][:, None], d, 0.0)
+            if not dr.any():
+                continue
+            op = self._operators[r]
+            out += op.displacements(dr) * self.region[r][:, None]
+        return out
+
+    def points_delta(self, sample: ExpressionSample, aus, magnitude: float = 1.0,
+                     side: str = "both") -> np.ndarray:
+        """One learned expression restricted to the union of the listed AUs' control points
+        (each point moves once): how a whole real expression is rebuilt with ``aus='all'``."""
+        keep = set()
+        for au in aus:
+            keep.update(self.library.action_unit(au).points_on(side))
+        return self.delta(sample.subset([n for n in sample.names if n in keep]), magnitude)
+
+    def action_unit_delta(self, model: ActionUnitModel, au: int, magnitude: float = 1.0,
+                          side: str = "both") -> np.ndarray:
+        unit = self.library.action_unit(au)
+        if unit.number not in model.samples:
+            raise ActionUnitError(f"AU{unit.number} has no learned displacements in this model")
+        sample = model.samples[unit.number]
+        keep = [n for n in unit.points_on(side) if n in sample.names]
+        return self.delta(sample.subset(keep), magnitude)
+
+    def mixture_delta(self, model: ActionUnitModel, weights: dict[int, float], side: str = "both") -> np.ndarray:
+        """Several AUs at once. Their displacements add where they share a control point."""
+        out = np.zeros_like(self.mesh.vertices)
+        for au, m in weights.items():
+            if m:
+                out += self.action_unit_delta(model, au, self.library.intensity(m), side)
+        return out
+
+    def rig(self, model: ActionUnitModel, emotions: bool = True, sides: bool = True) -> Rig:
+        """Every AU of the model (and its one-sided halves) and every emotion as named blendshapes."""
+        shapes = {}
+        for au in sorted(model.samples):
+            if au not in self.library.action_units:
+                continue
+            shapes[f"AU{au}"] = self.action_unit_delta(model, au)
+            if sides and any(p.endswith("_R") for p in self.library.action_unit(au).points):
+                for s in ("L", "R"):
+                    shapes[f"AU{au}_{s}"] = self.action_unit_delta(model, au, side=s)
+        if emotions:
+            for name in self.library.emotions:
+                mix = self.library.emotion(name)
+                if all(a in model.samples for a in mix):
+                    shapes[name] = self.mixture_delta(model, mix)
+        return Rig(self.mesh, shapes)
