@@ -108,6 +108,81 @@ def _cmd_render(args) -> None:
     print(f"wrote {args.output}")
 
 
+def _face_and_landmarks(path, landmarks_file):
+    from .default_face import default_face
+    from .facs import landmarks_478
+    from .landmarks import Landmarks, detect_landmarks
+    from .mesh import load_mesh
+
+    if path in (None, "default"):
+        mesh = default_face()
+    else:
+        mesh = load_mesh(path)
+    if landmarks_file:
+        lms = Landmarks.load(landmarks_file).attached_to(mesh)
+    else:
+        lms = detect_landmarks(mesh)
+    return mesh, landmarks_478(mesh, lms)
+
+
+def _write_expression(args, mesh, pose_delta, shapes) -> None:
+    """The posed face as OBJ/PLY/GLB (GLB: rest mesh + every blendshape as a morph target,
+    the requested pose as the default weights) or a PNG render."""
+    from .export.gltf import write_gltf
+    from .mesh import save_mesh
+    from .render import render_png
+
+    suffix = Path(args.output).suffix.lower()
+    if suffix == ".png":
+        render_png(mesh, args.output, vertices=mesh.vertices + pose_delta, size=(args.size, args.size), yaw=0, pitch=0)
+    elif suffix == ".glb":
+        names = list(shapes)
+        times = np.array([0.0, 1.0, 2.0])
+        w = np.zeros((3, len(names)))
+        w[1, names.index("pose")] = 1.0
+        write_gltf(args.output, mesh, shapes, times=times, weights=w, animation_name="expression")
+    else:
+        save_mesh(mesh, args.output, vertices=mesh.vertices + pose_delta)
+    print(f"wrote {args.output}")
+
+
+def _cmd_au(args) -> None:
+    from .facs import default_library
+    from .transfer import ExpressionTransfer, default_model
+
+    lib = default_library()
+    if args.emotion and args.au:
+        raise FaceAnimError("give --au or --emotion, not both")
+    if not args.emotion and not args.au:
+        raise FaceAnimError("give --au (e.g. 12 or 1,2 or all) or --emotion (e.g. joy)")
+    m = lib.intensity(args.magnitude)
+    mix = lib.emotion(args.emotion) if args.emotion else {au: 1.0 for au in lib.parse_action_units(args.au)}
+    model = default_model()
+    mesh, lm = _face_and_landmarks(args.target, args.landmarks)
+    xf = ExpressionTransfer(mesh, lm, lib, method=args.method)
+    pose = xf.mixture_delta(model, {au: w * m for au, w in mix.items()}, side=args.side)
+    shapes = {"pose": pose}
+    if Path(args.output).suffix.lower() == ".glb":
+        shapes.update(xf.rig(model).blendshape_dict())
+    _write_expression(args, mesh, pose, shapes)
+
+
+def _cmd_transfer(args) -> None:
+    from .facs import default_library
+    from .transfer import ExpressionTransfer, learn_expression
+
+    lib = default_library()
+    m = lib.intensity(args.magnitude)
+    aus = lib.parse_action_units(args.au)
+    s0, lm0 = _face_and_landmarks(args.source_neutral, None)
+    s1, lm1 = _face_and_landmarks(args.source_expressive, None)
+    sample = learn_expression(s0, s1, lm0, lm1, lib)
+    mesh, lm = _face_and_landmarks(args.target, args.landmarks)
+    xf = ExpressionTransfer(mesh, lm, lib, method=args.method)
+    pose = xf.points_delta(sample, aus, m, side=args.side)
+    _write_expression(args, mesh, pose, {"pose": pose / m if m else pose})
+
+
 def _output_path(suffixes):
     def check(value: str) -> str:
         if Path(value).suffix.lower() not in suffixes:
@@ -154,6 +229,31 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--yaw", type=float, default=15.0)
     r.add_argument("--pitch", type=float, default=4.0)
     r.set_defaults(func=_cmd_render)
+
+    a = sub.add_parser("au", help="pose a face with FACS action units or an emotion (built-in AU library)")
+    a.add_argument("target", nargs="?", default="default", help="mesh (default: the embedded default face)")
+    a.add_argument("--au", help="action units: 12, 1,2 or all")
+    a.add_argument("--emotion", help="joy, sadness, surprise, fear, anger or disgust")
+    a.add_argument("--magnitude", default="1.0", help="m in [0, 1] or a FACS intensity A-E (default 1)")
+    a.add_argument("--side", default="both", choices=["both", "L", "R"], help="one-sided action (subject's side)")
+    a.add_argument("--method", default="surface", choices=["surface", "tps"], help="warp interpolant")
+    a.add_argument("--landmarks", help="landmark JSON for the target instead of detection")
+    a.add_argument("-o", "--output", required=True, type=_output_path([".glb", ".png", ".obj", ".ply"]))
+    a.add_argument("--size", type=int, default=512, help="PNG size")
+    a.set_defaults(func=_cmd_au)
+
+    t = sub.add_parser("transfer", help="learn AUs from a neutral/expressive scan pair and apply them to a target")
+    t.add_argument("--source-neutral", required=True)
+    t.add_argument("--source-expressive", required=True)
+    t.add_argument("--target", default="default", help="mesh (default: the embedded default face)")
+    t.add_argument("--au", default="all", help="action units whose control points move: 12, 1,2 or all")
+    t.add_argument("--magnitude", default="1.0", help="m in [0, 1] or a FACS intensity A-E")
+    t.add_argument("--side", default="both", choices=["both", "L", "R"])
+    t.add_argument("--method", default="surface", choices=["surface", "tps"])
+    t.add_argument("--landmarks", help="landmark JSON for the target instead of detection")
+    t.add_argument("-o", "--output", required=True, type=_output_path([".glb", ".png", ".obj", ".ply"]))
+    t.add_argument("--size", type=int, default=512)
+    t.set_defaults(func=_cmd_transfer)
     return p
 
 

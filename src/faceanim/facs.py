@@ -258,8 +258,8 @@ def region_weights(vertices: np.ndarray, lm478: np.ndarray, library: ActionUnitL
 
 
 def _named_point(lm478, library, name) -> np.ndarray:
-    if name == "subnasale":
-        return np.asarray(lm478)[2]
+    if isinstance(name, int):
+        return np.asarray(lm478)[name]
     return np.asarray(lm478)[list(library.control_points[name].at)].mean(0)
 
 

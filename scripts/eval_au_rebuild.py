@@ -1,0 +1,118 @@
+"""Rebuild real expressions from the neutral scan with control-point displacements only.
+
+    python scripts/eval_au_rebuild.py ../shared/data/facewarehouse-tester1 [--landmark-learning]
+
+The thesis' own test (Erdogdu 2010, ch. 6): for each expressive scan pose_k of one person,
+learn the displacements of the control points from (pose_0, pose_k), warp pose_0 with them,
+and compare with the real scan. Error over the face region (inside the landmark face oval):
+|rebuilt - real| / |real - neutral| (Frobenius norms, scans rigidly aligned on the skull).
+Works on any folder of pose_0.obj .. pose_N.obj scans of one person in one topology.
+"""
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from faceanim.deform.rbf import RadialBasis
+from faceanim.deform.surface import bind_surface
+from faceanim.facs import FACE_OVAL, default_library, face_frame, face_region, landmarks_478
+from faceanim.landmarks import BASIC22, detect_landmarks
+from faceanim.mesh import load_mesh
+from faceanim.transfer import ExpressionTransfer, _stable_vertices, learn_expression, rigid_align
+
+
+def farthest_points(points, n, start):
+    d = np.min(np.linalg.norm(points[:, None] - start[None], axis=2), axis=1)
+    out = []
+    for _ in range(n):
+        i = int(d.argmax())
+        out.append(i)
+        d = np.minimum(d, np.linalg.norm(points - points[i], axis=1))
+    return np.array(out)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("data", type=Path)
+    ap.add_argument("--landmark-learning", action="store_true",
+                    help="also learn without correspondences (landmarks detected on every scan, TPS + snapping)")
+    args = ap.parse_args(argv)
+    files = sorted(args.data.glob("pose_*.obj"), key=lambda p: int(p.stem.split("_")[1]))
+    if len(files) < 2 or files[0].stem != "pose_0":
+        sys.exit(f"{args.data}: expected pose_0.obj (neutral) and pose_1.obj ... (expressions)")
+    t0 = time.time()
+    meshes = [load_mesh(f) for f in files]
+    neutral = meshes[0]
+    lm = landmarks_478(neutral, detect_landmarks(neutral))
+    frame = face_frame(lm)
+    lib = default_library()
+    stable = _stable_vertices(neutral, lm, frame)
+    aligned = []
+    for m in meshes:
+        r, t = rigid_align(m.vertices[stable], neutral.vertices[stable])
+        aligned.append(m.vertices @ r.T + t)
+    v0 = aligned[0]
+    face = face_region(v0, lm, frame)
+    fidx = np.flatnonzero(face)
+    real = [a - v0 for a in aligned[1:]]
+
+    def err(delta, k):
+        return np.linalg.norm((delta - real[k])[fidx]) / np.linalg.norm(real[k][fidx])
+
+    rows = {}
+    rows["neutral (no motion)"] = (0, [1.0] * len(real))
+    # global TPS on the basic 22 landmarks (followed through their triangles)
+    ids = [i for _, i in BASIC22]
+    pos, _, tri = neutral.closest_points(lm[ids])
+    bary = neutral.barycentric(pos, tri)
+    w = RadialBasis(pos, "thin_plate_spline", smoothing=0.0).weights(v0)
+    rows["global TPS, 22 landmarks"] = (22, [err(w @ (np.einsum("nk,nkd->nd", bary, a[neutral.faces[tri]]) - pos), k)
+                                             for k, a in enumerate(aligned[1:])])
+    # uniform placement: farthest-point samples on the face + fixed anchors on the face border
+    border = np.flatnonzero(face & ((neutral.adjacency @ (~face).astype(float)) > 0))
+    anchors = border[farthest_points(v0[border], 40, v0[border][:1])]
+    for n in (60, 120, 240):
+        sel = fidx[farthest_points(v0[fidx], n, v0[anchors])]
+        h = np.concatenate([sel, anchors])
+        w = RadialBasis(v0[h], "thin_plate_spline", smoothing=0.0).weights(v0)[:, :n]
+        rows[f"uniform {n} + border anchors, TPS"] = (n, [err(w @ (a[sel] - v0[sel]), k) for k, a in enumerate(aligned[1:])])
+        vt = np.full(len(v0), -1)
+        vt[neutral.faces.ravel()] = np.repeat(np.arange(neutral.n_faces), 3)
+        b = (neutral.faces[vt[h]] == h[:, None]).astype(float)
+        op = bind_surface(v0, neutral.faces, vt[h], b, None)
+        rows[f"uniform {n} + border anchors, surface"] = (n, [
+            err(op.displacements(np.vstack([a[sel] - v0[sel], np.zeros((len(anchors), 3))])), k)
+            for k, a in enumerate(aligned[1:])])
+    # anatomical control points from the AU library
+    aus = lib.parse_action_units("all")
+    samples = [learn_expression(neutral, m, lm, library=lib) for m in meshes[1:]]
+    for method, label in (("tps", "thesis: AU points, TPS per face half"), ("surface", "faceanim: AU points, surface")):
+        xf = ExpressionTransfer(neutral, lm, lib, method=method)
+        rows[label] = (len(xf.points.names), [err(xf.points_delta(s, aus), k) for k, s in enumerate(samples)])
+    if args.landmark_learning:
+        xf = ExpressionTransfer(neutral, lm, lib, method="surface")
+        errs = []
+        for k, m in enumerate(meshes[1:]):
+            lm_k = landmarks_478(m, detect_landmarks(m))
+            s = learn_expression(neutral, m, lm, lm_k, lib, method="landmarks")
+            errs.append(err(xf.points_delta(s, aus), k))
+        rows["faceanim, learned by landmark TPS + snapping"] = (len(xf.points.names), errs)
+
+    names = [f.stem for f in files[1:]]
+    print(f"\n{args.data}: {len(real)} expressions, face region {len(fidx)} of {neutral.n_vertices} vertices\n")
+    print("| method | control points | median | mean | max |")
+    print("|---|---|---|---|---|")
+    for label, (n, e) in rows.items():
+        e = np.asarray(e)
+        print(f"| {label} | {n} | {np.median(e):.3f} | {e.mean():.3f} | {e.max():.3f} |")
+    print("\nper expression (faceanim: AU points, surface):")
+    e = rows["faceanim: AU points, surface"][1]
+    print(" ".join(f"{n}:{x:.2f}" for n, x in zip(names, e)))
+    print(f"\n({time.time() - t0:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
