@@ -17,14 +17,14 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from matplotlib.path import Path as Polygon2D
 from PIL import Image
 from scipy.spatial import Delaunay
-from matplotlib.path import Path as Polygon2D
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from faceanim.landmarks import detect_landmarks_in_image  # noqa: E402
+from faceanim.landmarks import detect_landmarks_in_image
 
 ASSETS = ROOT / "src" / "faceanim" / "assets"
 

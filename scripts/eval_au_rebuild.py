@@ -18,10 +18,20 @@ import numpy as np
 
 from faceanim.deform.rbf import RadialBasis
 from faceanim.deform.surface import bind_surface
-from faceanim.facs import FACE_OVAL, default_library, face_frame, face_region, landmarks_478
+from faceanim.facs import (
+    default_library,
+    face_frame,
+    face_region,
+    landmarks_478,
+)
 from faceanim.landmarks import BASIC22, detect_landmarks
 from faceanim.mesh import load_mesh
-from faceanim.transfer import ExpressionTransfer, _stable_vertices, learn_expression, rigid_align
+from faceanim.transfer import (
+    ExpressionTransfer,
+    _stable_vertices,
+    learn_expression,
+    rigid_align,
+)
 
 
 def farthest_points(points, n, start):

@@ -10,7 +10,6 @@ face and of mouth width for the lower face).
 """
 
 import argparse
-import json
 import sys
 from pathlib import Path
 

@@ -7,8 +7,8 @@ weights between keys in [0, 1] stay in [0, 1]. ``'linear'`` is available too.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -29,7 +29,7 @@ class KeyframeAnimation:
 
     @classmethod
     def from_keys(cls, controls: Sequence[str], keys: Sequence[tuple[float, Mapping[str, float]]],
-                  interpolation: str = "smooth") -> "KeyframeAnimation":
+                  interpolation: str = "smooth") -> KeyframeAnimation:
         if interpolation not in INTERPOLATIONS:
             raise FaceAnimError(f"unknown interpolation '{interpolation}'; choose {', '.join(INTERPOLATIONS)}")
         if not keys:

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from .animation import expression_tour
-from .deform.gde import GeometryDeformationElement as GDE
 from .default_face import default_face, default_landmarks
+from .deform.gde import GeometryDeformationElement as GDE
 from .export.gltf import write_gltf
-from .rig import Expression, Rig
 from .render import OffscreenRenderer, save_png, write_video
+from .rig import Expression, Rig
 
 
 def demo_expressions(lm) -> list[Expression]:

@@ -17,7 +17,7 @@ from importlib import resources
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.csgraph as csgraph
+from scipy.sparse import csgraph
 
 from .errors import FaceAnimError, LandmarkError
 from .landmarks import BASIC22, Landmarks

@@ -6,8 +6,8 @@ import contextlib
 import json
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 from .errors import InputFileError
 
@@ -54,7 +54,6 @@ def read_json(path: str | os.PathLike, what: str = "JSON file") -> object:
 
 def write_json(path: str | os.PathLike, data: object) -> None:
     """Write ``data`` as indented JSON atomically."""
-    with atomic_output(path) as tmp:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=1)
-            fh.write("\n")
+    with atomic_output(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        json.dump(data, fh, indent=1)
+        fh.write("\n")

@@ -78,7 +78,7 @@ class Landmarks:
         except ValueError:
             raise LandmarkError(f"no landmark named '{name}' in scheme '{self.scheme}'") from None
 
-    def subset(self, scheme: str) -> "Landmarks":
+    def subset(self, scheme: str) -> Landmarks:
         """The landmarks of another (smaller) scheme, e.g. ``basic22`` out of ``mediapipe478``."""
         if scheme not in SCHEMES:
             raise LandmarkError(f"unknown landmark scheme '{scheme}'; choose one of: {', '.join(SCHEMES)}")
@@ -122,7 +122,7 @@ class Landmarks:
         return Path(path)
 
     @classmethod
-    def from_dict(cls, d: object, source: str = "landmarks") -> "Landmarks":
+    def from_dict(cls, d: object, source: str = "landmarks") -> Landmarks:
         if not isinstance(d, dict) or not isinstance(d.get("points"), list) or not d["points"]:
             raise LandmarkError(f"{source}: expected {{'scheme': ..., 'points': [{{'name', 'position'}}, ...]}}")
         names, idx, pos, tri, bary = [], [], [], [], []
@@ -145,10 +145,10 @@ class Landmarks:
                    np.asarray(bary, dtype=np.float64), d.get("detected_on"))
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "Landmarks":
+    def load(cls, path: str | os.PathLike) -> Landmarks:
         return cls.from_dict(read_json(path, "landmark file"), str(path))
 
-    def attached_to(self, mesh, max_distance: float = 0.05) -> "Landmarks":
+    def attached_to(self, mesh, max_distance: float = 0.05) -> Landmarks:
         """These landmarks snapped to ``mesh``'s surface, with triangles and barycentrics.
 
         Used when landmarks come from a file instead of detection. A point farther from the

@@ -166,7 +166,7 @@ class Mesh:
         return hit, pos, tri
 
     # ------------------------------------------------------------------ variants
-    def with_vertices(self, vertices) -> "Mesh":
+    def with_vertices(self, vertices) -> Mesh:
         """The same mesh (faces, UVs, texture) with other vertex positions."""
         return Mesh(vertices, self.faces, self.uv, self.face_uv, self.texture, self.polygon_sizes,
                     self.name, self.source)

@@ -10,8 +10,8 @@ matrix product, ``(F, C) @ (C, 3V)``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -38,7 +38,7 @@ class Expression:
             )
 
     @classmethod
-    def from_dict(cls, d: Mapping, index: int = 0) -> "Expression":
+    def from_dict(cls, d: Mapping, index: int = 0) -> Expression:
         if not isinstance(d, Mapping) or not isinstance(d.get("elements"), list) or not d["elements"]:
             raise DeformError(f"expression {index} needs a non-empty 'elements' list")
         name = str(d.get("name", f"expression{index}"))
@@ -67,7 +67,7 @@ class Rig:
         self.deformer: LinearDeformer | None = None
 
     @classmethod
-    def from_expressions(cls, mesh: Mesh, expressions: Sequence[Expression]) -> "Rig":
+    def from_expressions(cls, mesh: Mesh, expressions: Sequence[Expression]) -> Rig:
         """Bind every expression's GDEs once and compile each expression to a blendshape."""
         names = [e.name for e in expressions]
         dup = {n for n in names if names.count(n) > 1}

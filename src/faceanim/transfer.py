@@ -29,8 +29,19 @@ import numpy as np
 from .deform.rbf import RadialBasis, check_points
 from .deform.surface import bind_surface
 from .errors import DeformError, LandmarkError, MeshError
-from .facs import (FACE_OVAL, STABLE_LANDMARKS, ActionUnitError, ActionUnitLibrary, ControlPoints, FaceFrame,
-                   default_library, face_frame, free_region, place_control_points, region_weights)
+from .facs import (
+    FACE_OVAL,
+    STABLE_LANDMARKS,
+    ActionUnitError,
+    ActionUnitLibrary,
+    ControlPoints,
+    FaceFrame,
+    default_library,
+    face_frame,
+    free_region,
+    place_control_points,
+    region_weights,
+)
 from .mesh import Mesh
 from .rig import Rig
 
@@ -93,7 +104,7 @@ class ExpressionSample:
     source: str = ""
     method: str = "correspondence"
 
-    def subset(self, names) -> "ExpressionSample":
+    def subset(self, names) -> ExpressionSample:
         where = {n: k for k, n in enumerate(self.names)}
         return ExpressionSample(list(names), self.displacements[[where[n] for n in names]], self.source, self.method)
 
@@ -102,7 +113,7 @@ class ExpressionSample:
                 "points": {n: [round(float(x), 6) for x in d] for n, d in zip(self.names, self.displacements)}}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ExpressionSample":
+    def from_dict(cls, d: dict) -> ExpressionSample:
         names = list(d["points"])
         return cls(names, np.array([d["points"][n] for n in names], dtype=np.float64).reshape(-1, 3),
                    d.get("source", ""), d.get("method", ""))
@@ -174,7 +185,7 @@ class ActionUnitModel:
         return {"about": self.about, "action_units": {str(k): s.to_dict() for k, s in sorted(self.samples.items())}}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ActionUnitModel":
+    def from_dict(cls, d: dict) -> ActionUnitModel:
         return cls({int(k): ExpressionSample.from_dict(v) for k, v in d["action_units"].items()}, d.get("about", ""))
 
 

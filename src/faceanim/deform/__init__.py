@@ -6,6 +6,12 @@ from .gde import BoundElement, GeometryDeformationElement, bind_element, bind_gd
 from .rbf import KERNELS, RadialBasis, bind_rbf
 
 __all__ = [
-    "LinearDeformer", "RadialBasis", "bind_rbf", "KERNELS",
-    "GeometryDeformationElement", "BoundElement", "bind_element", "bind_gdes",
+    "KERNELS",
+    "BoundElement",
+    "GeometryDeformationElement",
+    "LinearDeformer",
+    "RadialBasis",
+    "bind_element",
+    "bind_gdes",
+    "bind_rbf",
 ]

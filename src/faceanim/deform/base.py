@@ -12,8 +12,8 @@ stays bit-identical.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -110,18 +110,18 @@ class LinearDeformer:
         return full
 
     # ------------------------------------------------------------------ conversions
-    def astype(self, dtype) -> "LinearDeformer":
+    def astype(self, dtype) -> LinearDeformer:
         """The same deformer evaluated in another float type (float32 is the fast path)."""
         w = self.weights.astype(dtype)
         return LinearDeformer(self.rest.astype(dtype), w, self.rows, self.handle_names)
 
-    def to_sparse(self, tolerance: float = 0.0) -> "LinearDeformer":
+    def to_sparse(self, tolerance: float = 0.0) -> LinearDeformer:
         """Sparse copy, dropping weights with magnitude <= ``tolerance``."""
         w = self.weights.toarray() if sp.issparse(self.weights) else self.weights
         w = np.where(np.abs(w) > tolerance, w, 0)
         return LinearDeformer(self.rest, sp.csr_matrix(w), self.rows, self.handle_names)
 
-    def to_dense(self) -> "LinearDeformer":
+    def to_dense(self) -> LinearDeformer:
         w = self.weights.toarray() if sp.issparse(self.weights) else self.weights
         return LinearDeformer(self.rest, w, self.rows, self.handle_names)
 
@@ -220,7 +220,7 @@ class LinearDeformer:
 
     # ------------------------------------------------------------------ composition
     @staticmethod
-    def stack(deformers: Sequence["LinearDeformer"]) -> "LinearDeformer":
+    def stack(deformers: Sequence[LinearDeformer]) -> LinearDeformer:
         """One deformer driving the handles of several, side by side (their effects add)."""
         if not deformers:
             raise DeformError("stack needs at least one deformer")

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.csgraph as csgraph
+from scipy.sparse import csgraph
 
 from ..errors import DeformError
 from .base import LinearDeformer
@@ -63,7 +63,7 @@ class GeometryDeformationElement:
     name: str = ""
 
     @classmethod
-    def from_dict(cls, d: dict, index: int = 0) -> "GeometryDeformationElement":
+    def from_dict(cls, d: dict, index: int = 0) -> GeometryDeformationElement:
         if not isinstance(d, dict) or "control" not in d:
             raise DeformError(f"element {index} needs a 'control' point [x, y, z]")
         known = {"control", "offset", "extent", "metric", "kernel", "smoothing", "stiffness",
