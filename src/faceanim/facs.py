@@ -66,6 +66,7 @@ class ControlPointSpec:
     region: str
     side_of: str | None = None  # a slit ('mouth', 'eye_R', 'eye_L') the point borders
     lid: str | None = None  # 'upper' or 'lower' side of that slit
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # from the landmarks, face frame, IOD units
 
 
 class ActionUnitLibrary:
@@ -75,7 +76,8 @@ class ActionUnitLibrary:
         self.about = data.get("about", "")
         self.intensity_scale = {k: float(v) for k, v in data["intensity_scale"].items()}
         self.control_points = {
-            n: ControlPointSpec(n, tuple(int(i) for i in d["at"]), d["region"], d.get("side_of"), d.get("lid"))
+            n: ControlPointSpec(n, tuple(int(i) for i in d["at"]), d["region"], d.get("side_of"), d.get("lid"),
+                                tuple(float(x) for x in d.get("offset", (0.0, 0.0, 0.0))))
             for n, d in data["control_points"].items()}
         self.slits = {n: {k: tuple(v) for k, v in d.items()} for n, d in data["slits"].items()}
         self.masks = data["region_masks"]
@@ -313,7 +315,9 @@ def place_control_points(mesh: Mesh, lm478: np.ndarray, library: ActionUnitLibra
     library = library or default_library()
     names = list(library.control_points) if names is None else list(names)
     specs = [library.control_points[n] for n in names]
-    target = np.stack([np.asarray(lm478)[list(s.at)].mean(0) for s in specs])
+    frame = face_frame(lm478)
+    target = np.stack([np.asarray(lm478)[list(s.at)].mean(0) + frame.vectors_to_mesh(np.array(s.offset)) * frame.iod
+                       for s in specs])
     pos, _, tri = mesh.closest_points(target)
     tri = np.asarray(tri).copy()
     pos = np.asarray(pos).copy()

@@ -77,20 +77,32 @@ def landmark_tps(source, target, what: str = "landmarks") -> RadialBasis:
     return _Warp()
 
 
-def rigid_align(moving: np.ndarray, fixed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation R and translation t that best map ``moving`` onto ``fixed`` (Kabsch)."""
+def rigid_align(moving: np.ndarray, fixed: np.ndarray, keep: float = 0.5,
+                iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R and translation t that best map ``moving`` onto ``fixed`` (Kabsch), robustly:
+    after a first fit only the best-fitting ``keep`` fraction of the points is refitted, a few
+    times, so skin that did move (a neck dragged by the jaw) does not tilt the skull."""
     a, b = np.asarray(moving, dtype=np.float64), np.asarray(fixed, dtype=np.float64)
-    ca, cb = a.mean(0), b.mean(0)
-    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    return r, cb - r @ ca
+    sel = np.arange(len(a))
+    for it in range(iterations + 1):
+        ca, cb = a[sel].mean(0), b[sel].mean(0)
+        u, _, vt = np.linalg.svd((a[sel] - ca).T @ (b[sel] - cb))
+        d = np.sign(np.linalg.det(vt.T @ u.T))
+        r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+        t = cb - r @ ca
+        if it == iterations or len(a) < 8:
+            break
+        res = np.linalg.norm(a @ r.T + t - b, axis=1)
+        sel = np.argsort(res)[: max(4, int(keep * len(a)))]
+    return r, t
 
 
 def _stable_vertices(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame) -> np.ndarray:
-    """Vertices for rigid alignment of two scans: the skull outside the expressive region."""
+    """Vertices for rigid alignment of two scans: the skull above the mouth, outside the
+    region expressions move (none on a face mask: then stable landmarks are used)."""
     free = free_region(mesh, lm478, frame)
-    out = np.flatnonzero(~free)
+    above = frame.to_local(mesh.vertices)[:, 1] > frame.to_local(np.asarray(lm478)[2])[1]
+    out = np.flatnonzero(~free & above)
     return out if len(out) >= 50 else np.zeros(0, dtype=np.int64)
 
 

@@ -53,7 +53,7 @@ def cotangent_laplacian(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.csr
 
 
 def bind_surface(rest, faces, handle_triangles, handle_barycentric, free=None,
-                 handle_names=None, regularisation: float = 1e-8) -> LinearDeformer:
+                 handle_names=None, regularisation: float = 1e-8, order: int = 2) -> LinearDeformer:
     """Bind a surface-biharmonic deformer.
 
     Parameters
@@ -81,7 +81,16 @@ def bind_surface(rest, faces, handle_triangles, handle_barycentric, free=None,
         raise DeformError(f"free must be a boolean mask of the {n} vertices")
     lap, area = cotangent_laplacian(rest, faces)
     area = np.maximum(area, area[area > 0].mean() * 1e-6 if (area > 0).any() else 1.0)
-    energy = (lap.T @ sp.diags(1.0 / area) @ lap).tocsr()
+    minv = sp.diags(1.0 / area)
+    if order == 2:
+        energy = (lap.T @ minv @ lap).tocsr()
+    elif order == 3:
+        energy = (lap.T @ minv @ lap @ minv @ lap).tocsr()
+        energy = 0.5 * (energy + energy.T)
+    elif order == 1:
+        energy = -lap
+    else:
+        raise DeformError(f"order must be 1 (harmonic), 2 (biharmonic) or 3 (triharmonic), got {order}")
     fr = np.flatnonzero(free)
     index = np.full(n, -1)
     index[fr] = np.arange(len(fr))
