@@ -1,12 +1,15 @@
 """Rebuild real expressions from the neutral scan with control-point displacements only.
 
     python scripts/eval_au_rebuild.py ../shared/data/facewarehouse-tester1 [--landmark-learning]
+    python scripts/eval_au_rebuild.py ../shared/data/ict-facekit
+
 
 The thesis' own test (Erdogdu 2010, ch. 6): for each expressive scan pose_k of one person,
 learn the displacements of the control points from (pose_0, pose_k), warp pose_0 with them,
 and compare with the real scan. Error over the face region (inside the landmark face oval):
 |rebuilt - real| / |real - neutral| (Frobenius norms, scans rigidly aligned on the skull).
-Works on any folder of pose_0.obj .. pose_N.obj scans of one person in one topology.
+Works on any folder of pose_0.obj .. pose_N.obj scans of one person in one topology, and on
+a folder of blendshapes beside a neutral mesh (ICT: generic_neutral_mesh.obj + *.obj).
 """
 
 import argparse
@@ -51,8 +54,12 @@ def main(argv=None):
                     help="also learn without correspondences (landmarks detected on every scan, TPS + snapping)")
     args = ap.parse_args(argv)
     files = sorted(args.data.glob("pose_*.obj"), key=lambda p: int(p.stem.split("_")[1]))
-    if len(files) < 2 or files[0].stem != "pose_0":
-        sys.exit(f"{args.data}: expected pose_0.obj (neutral) and pose_1.obj ... (expressions)")
+    if (args.data / "generic_neutral_mesh.obj").exists():
+        files = [args.data / "generic_neutral_mesh.obj"] + sorted(
+            p for p in args.data.glob("*.obj") if p.name != "generic_neutral_mesh.obj")
+    elif len(files) < 2 or files[0].stem != "pose_0":
+        sys.exit(f"{args.data}: expected pose_0.obj (neutral) and pose_1.obj ... (expressions), "
+                 "or generic_neutral_mesh.obj and blendshapes")
     t0 = time.time()
     meshes = [load_mesh(f) for f in files]
     neutral = meshes[0]
@@ -65,7 +72,7 @@ def main(argv=None):
         r, t = rigid_align(m.vertices[stable], neutral.vertices[stable])
         aligned.append(m.vertices @ r.T + t)
     v0 = aligned[0]
-    face = face_region(v0, lm, frame)
+    face = face_region(neutral, lm, frame)
     fidx = np.flatnonzero(face)
     real = [a - v0 for a in aligned[1:]]
 

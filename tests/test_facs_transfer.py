@@ -120,7 +120,7 @@ def test_rebuild_real_expression_beats_landmark_tps():
     stable = _stable_vertices(n, lm, xf.frame)
     r, t = rigid_align(e.vertices[stable], n.vertices[stable])
     real = e.vertices @ r.T + t - n.vertices
-    face = face_region(n.vertices, lm)
+    face = face_region(n, lm)
     sample = learn_expression(n, e, lm)
     rebuilt = xf.points_delta(sample, default_library().parse_action_units("all"))
     err = np.linalg.norm((rebuilt - real)[face]) / np.linalg.norm(real[face])

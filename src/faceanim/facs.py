@@ -28,6 +28,11 @@ SIDES = ("both", "R", "L")
 # the face oval of the MediaPipe face mesh, in order (forehead top, subject's left side, chin, ...)
 FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377,
              152, 148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109)
+# outer lip contour and the lid margins: what projects inside them and lies behind them is the
+# mouth cavity or the eye socket, not visible skin
+LIP_OUTER = (61, 185, 40, 39, 37, 0, 267, 269, 270, 409, 291, 375, 321, 405, 314, 17, 84, 181, 91, 146)
+EYE_RIGHT = (33, 246, 161, 160, 159, 158, 157, 173, 133, 155, 154, 153, 145, 144, 163, 7)
+EYE_LEFT = (263, 466, 388, 387, 386, 385, 384, 398, 362, 382, 381, 380, 374, 373, 390, 249)
 # landmarks on bone that barely move with expressions: rigid alignment of expressive scans
 STABLE_LANDMARKS = (168, 6, 197, 195, 133, 362, 33, 263, 234, 454, 10, 151)
 
@@ -204,22 +209,51 @@ def landmarks_478(mesh: Mesh, landmarks: Landmarks) -> np.ndarray:
     return pos
 
 
-def face_region(vertices: np.ndarray, lm478: np.ndarray, frame: FaceFrame | None = None) -> np.ndarray:
-    """Vertices of the face: inside the face oval seen from the front, not behind its rim."""
+def skin(mesh: Mesh, lm478: np.ndarray) -> np.ndarray:
+    """Vertices of the face's skin shell: the connected part that carries most landmarks, so
+    eyeballs, teeth, gums and tongue modelled as separate shells of one mesh are left out."""
+    _, near = mesh.kdtree.query(np.asarray(lm478)[list(FACE_OVAL) + [4, 0, 17, 70, 300]])
+    labels = mesh.vertex_components
+    main = np.bincount(labels[near]).argmax()
+    return labels == main
+
+
+def depth_behind_front(mesh: Mesh, frame: FaceFrame, cell: float = 0.04) -> np.ndarray:
+    """How far (mesh units) each vertex lies behind the front-most surface at its place in the
+    frontal view: ~0 on visible skin, large on the inside of the cheeks and the mouth cavity.
+    A vertex z-buffer on cells of ``cell`` inter-ocular distances."""
+    local = frame.to_local(mesh.vertices)
+    ij = np.floor(local[:, :2] / (cell * frame.iod)).astype(np.int64)
+    _, inv = np.unique(ij, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    top = np.full(inv.max() + 1, -np.inf)
+    np.maximum.at(top, inv, local[:, 2])
+    return top[inv] - local[:, 2]
+
+
+def face_region(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame | None = None) -> np.ndarray:
+    """Vertices of the face: skin inside the face oval seen from the front, not behind its rim,
+    without the mouth cavity and eye sockets (skin behind the lip contour and lid margins)."""
     from matplotlib.path import Path as PolyPath
 
     frame = frame or face_frame(lm478)
-    local = frame.to_local(vertices)
+    local = frame.to_local(mesh.vertices)
     oval = frame.to_local(np.asarray(lm478)[list(FACE_OVAL)])
     inside = PolyPath(oval[:, :2]).contains_points(local[:, :2])
-    return inside & (local[:, 2] > oval[:, 2].min() - 0.1 * frame.iod)
+    region = inside & (local[:, 2] > oval[:, 2].min() - 0.1 * frame.iod) & skin(mesh, lm478)
+    region &= depth_behind_front(mesh, frame) < 0.15 * frame.iod
+    for contour in (LIP_OUTER, EYE_RIGHT, EYE_LEFT):
+        c = frame.to_local(np.asarray(lm478)[list(contour)])
+        cavity = PolyPath(c[:, :2]).contains_points(local[:, :2]) & (local[:, 2] < c[:, 2].min() - 0.02 * frame.iod)
+        region &= ~cavity
+    return region
 
 
 def free_region(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame | None = None) -> np.ndarray:
     """Vertices an expression may move: the face region grown by a margin, and the jaw and
     throat below the mouth (the chin drags them along when the jaw drops)."""
     frame = frame or face_frame(lm478)
-    face = face_region(mesh.vertices, lm478, frame)
+    face = face_region(mesh, lm478, frame)
     if not face.any():
         raise LandmarkError(f"no vertices of '{mesh.name}' lie inside the face outline of the landmarks; "
                             "are the landmarks for this mesh?")
@@ -230,7 +264,10 @@ def free_region(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame | None = None) -
     near |= np.isfinite(dist)
     jaw = (local[:, 1] < p[13, 1]) & (local[:, 1] > p[152, 1] - 0.9 * frame.iod) & \
           (local[:, 2] > min(p[234, 2], p[454, 2]) + 0.1 * frame.iod)
-    return near | jaw
+    # the inside of the cheeks and the mouth cavity stay with the skull (they have no handles
+    # and would otherwise swing freely); the inner lips just behind the lip line stay free
+    inner = depth_behind_front(mesh, frame) > 0.3 * frame.iod
+    return (near | jaw) & skin(mesh, lm478) & ~inner
 
 
 def region_weights(vertices: np.ndarray, lm478: np.ndarray, library: ActionUnitLibrary,
@@ -279,13 +316,16 @@ def slit_sides(mesh: Mesh, lm478: np.ndarray, library: ActionUnitLibrary) -> dic
     Decided by distance along the surface from the outer lip or lid margin landmarks, so the
     inner sides of parted lips or open lids land on their own side.
     """
-    tree_v = mesh.kdtree
+    from scipy.spatial import cKDTree
+
+    on_skin = np.flatnonzero(skin(mesh, lm478))
+    tree_v = cKDTree(mesh.vertices[on_skin])
     out = {}
     for name, s in library.slits.items():
         _, up = tree_v.query(np.asarray(lm478)[list(s["upper"])])
         _, lo = tree_v.query(np.asarray(lm478)[list(s["lower"])])
-        du = _graph_distance(mesh, np.unique(up))
-        dl = _graph_distance(mesh, np.unique(lo))
+        du = _graph_distance(mesh, np.unique(on_skin[up]))
+        dl = _graph_distance(mesh, np.unique(on_skin[lo]))
         out[name] = dl < du
     return out
 
@@ -318,7 +358,8 @@ def place_control_points(mesh: Mesh, lm478: np.ndarray, library: ActionUnitLibra
     frame = face_frame(lm478)
     target = np.stack([np.asarray(lm478)[list(s.at)].mean(0) + frame.vectors_to_mesh(np.array(s.offset)) * frame.iod
                        for s in specs])
-    pos, _, tri = mesh.closest_points(target)
+    on_skin = skin(mesh, lm478)
+    pos, _, tri = mesh.closest_points(target, on_skin[mesh.faces].all(axis=1))
     tri = np.asarray(tri).copy()
     pos = np.asarray(pos).copy()
     if any(s.side_of for s in specs):
@@ -328,7 +369,7 @@ def place_control_points(mesh: Mesh, lm478: np.ndarray, library: ActionUnitLibra
         for k, s in enumerate(specs):
             if not s.side_of:
                 continue
-            own = sides[s.side_of] == (s.lid == "lower")
+            own = (sides[s.side_of] == (s.lid == "lower")) & on_skin
             # keep the projected point if its triangle is entirely on the right side
             if own[mesh.faces[tri[k]]].all():
                 continue

@@ -132,13 +132,32 @@ class Mesh:
         return vertex_normals(self.vertices if vertices is None else vertices, self.faces)
 
     # ------------------------------------------------------------------ queries
-    def closest_points(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Closest surface points: (positions (N, 3), distances (N,), triangle ids (N,))."""
+    def closest_points(self, points, triangles=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest surface points: (positions (N, 3), distances (N,), triangle ids (N,)).
+
+        ``triangles`` (indices or a boolean mask) restricts the search to part of the surface,
+        e.g. the skin of a head that also holds eyeballs and teeth.
+        """
         import trimesh
 
         pts = np.atleast_2d(np.asarray(points, dtype=np.float64))
-        closest, dist, tri = trimesh.proximity.closest_point(self.trimesh, pts)
-        return closest, dist, tri
+        if triangles is None:
+            closest, dist, tri = trimesh.proximity.closest_point(self.trimesh, pts)
+            return closest, dist, tri
+        allowed = np.asarray(triangles)
+        allowed = np.flatnonzero(allowed) if allowed.dtype == bool else allowed.astype(np.int64)
+        if allowed.size == 0:
+            raise MeshError(f"no triangles of '{self.name}' to search for closest points")
+        part = trimesh.Trimesh(self.vertices, self.faces[allowed], process=False, validate=False)
+        closest, dist, tri = trimesh.proximity.closest_point(part, pts)
+        return closest, dist, allowed[np.asarray(tri)]
+
+    @cached_property
+    def vertex_components(self) -> np.ndarray:
+        """Connected-component label of each vertex (shells such as eyeballs or teeth)."""
+        from scipy.sparse.csgraph import connected_components
+
+        return connected_components(self.adjacency, directed=False)[1]
 
     def barycentric(self, points, triangles) -> np.ndarray:
         """Barycentric coordinates of ``points`` in ``triangles`` (N, 3)."""

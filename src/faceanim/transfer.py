@@ -172,7 +172,8 @@ def learn_expression(neutral: Mesh, expressive: Mesh, neutral_lm478: np.ndarray,
         exp_lm = np.asarray(expressive_lm478) @ r.T + t
         warp = landmark_tps(neutral_lm478, exp_lm)
         aligned = expressive.with_vertices(expressive.vertices @ r.T + t)
-        moved, _, _ = aligned.closest_points(warp(points.positions))
+        on_skin = skin(expressive, expressive_lm478)
+        moved, _, _ = aligned.closest_points(warp(points.positions), on_skin[expressive.faces].all(axis=1))
     else:
         raise DeformError(f"unknown learning method '{method}'; choose correspondence, landmarks or auto")
     d = frame.vectors_to_local(moved - points.positions) / _normaliser(points.names, library, frame)[:, None]
