@@ -183,6 +183,24 @@ def _cmd_transfer(args) -> None:
     _write_expression(args, mesh, pose, {"pose": pose / m if m else pose})
 
 
+def _cmd_preprocess(args) -> None:
+    from .fileio import write_json
+    from .mesh import save_mesh
+    from .preprocess import AverageFace, preprocess, resample_to_grid
+
+    mesh, lm = _face_and_landmarks(args.scan, args.landmarks)
+    if args.no_normalise:
+        grid = resample_to_grid(mesh, lm, args.grid, args.crop)
+    else:
+        ref = AverageFace.load(args.reference) if args.reference else None
+        grid = preprocess(mesh, lm, ref, args.grid, args.crop)
+    lm_path = Path(args.output).with_suffix(".landmarks.json")
+    save_mesh(grid.mesh, args.output)
+    write_json(lm_path, {"scheme": "mediapipe478", "points": [
+        {"index": i, "position": [float(x) for x in p]} for i, p in enumerate(grid.landmarks)]})
+    print(f"wrote {args.output} ({grid.mesh.n_vertices} grid vertices of {args.grid}x{args.grid}) and {lm_path}")
+
+
 def _output_path(suffixes):
     def check(value: str) -> str:
         if Path(value).suffix.lower() not in suffixes:
@@ -254,6 +272,17 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", required=True, type=_output_path([".glb", ".png", ".obj", ".ply"]))
     t.add_argument("--size", type=int, default=512)
     t.set_defaults(func=_cmd_transfer)
+
+    pp = sub.add_parser("preprocess", help="crop a scan, resample it on a regular grid, normalise pose and size")
+    pp.add_argument("scan")
+    pp.add_argument("-o", "--output", required=True, type=_output_path([".obj", ".ply", ".glb"]))
+    pp.add_argument("--grid", type=int, default=150, help="grid vertices per side (default 150)")
+    pp.add_argument("--crop", default="oval", choices=["oval", "radius"],
+                    help="inside the landmark face oval, or a radius around the nose tip (raw scans)")
+    pp.add_argument("--landmarks", help="landmark JSON for the scan instead of detection")
+    pp.add_argument("--reference", help="average face model (.npz) to normalise to (default: faceanim's)")
+    pp.add_argument("--no-normalise", action="store_true", help="resample only, keep the scan's pose and size")
+    pp.set_defaults(func=_cmd_preprocess)
     return p
 
 

@@ -219,16 +219,20 @@ def skin(mesh: Mesh, lm478: np.ndarray) -> np.ndarray:
 
 
 def depth_behind_front(mesh: Mesh, frame: FaceFrame, cell: float = 0.04) -> np.ndarray:
-    """How far (mesh units) each vertex lies behind the front-most surface at its place in the
-    frontal view: ~0 on visible skin, large on the inside of the cheeks and the mouth cavity.
-    A vertex z-buffer on cells of ``cell`` inter-ocular distances."""
+    """How far (mesh units) each vertex lies behind the front-most surface around its place in
+    the frontal view: ~0 on visible skin, large on the inside of the cheeks, the mouth cavity or
+    the back of the head. A vertex z-buffer on cells of ``cell`` inter-ocular distances, each
+    cell taking the front-most depth of its 3 x 3 neighbourhood (so a cell that only a hidden
+    vertex falls into still sees the surface in front of it)."""
+    from scipy.ndimage import maximum_filter
+
     local = frame.to_local(mesh.vertices)
     ij = np.floor(local[:, :2] / (cell * frame.iod)).astype(np.int64)
-    _, inv = np.unique(ij, axis=0, return_inverse=True)
-    inv = inv.ravel()
-    top = np.full(inv.max() + 1, -np.inf)
-    np.maximum.at(top, inv, local[:, 2])
-    return top[inv] - local[:, 2]
+    ij -= ij.min(0)
+    top = np.full(ij.max(0) + 1, -np.inf)
+    np.maximum.at(top, (ij[:, 0], ij[:, 1]), local[:, 2])
+    top = maximum_filter(top, size=3, mode="constant", cval=-np.inf)
+    return top[ij[:, 0], ij[:, 1]] - local[:, 2]
 
 
 def face_region(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame | None = None) -> np.ndarray:

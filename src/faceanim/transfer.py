@@ -48,16 +48,23 @@ from .rig import Rig
 METHODS = ("surface", "tps")
 
 
-def landmark_tps(source, target, what: str = "landmarks") -> RadialBasis:
+def landmark_tps(source, target, what: str = "landmarks", merge_repeated: bool = False):
     """The thesis' 3D thin-plate spline through landmark pairs (eqs. 4.11-4.19).
 
     Returns a callable ``f(points)`` mapping points near ``source`` to points near ``target``.
-    Repeated or coplanar landmarks make the system singular: refused with a clear error.
+    Repeated or coplanar landmarks make the system singular: refused with a clear error, unless
+    ``merge_repeated`` (dense detected sets such as MediaPipe's 478, where two points can land on
+    one vertex): then only the first of each repeated source point is kept.
     """
     src = check_points(source, f"source {what}", min_count=5)
     dst = check_points(target, f"target {what}", min_count=5)
     if src.shape != dst.shape:
         raise LandmarkError(f"source and target {what} differ in count: {len(src)} vs {len(dst)}")
+    if merge_repeated:
+        scale = np.ptp(src, axis=0).max()
+        _, first = np.unique(np.round(src / (1e-6 * scale)).astype(np.int64), axis=0, return_index=True)
+        first = np.sort(first)
+        src, dst = src[first], dst[first]
     centred = src - src.mean(0)
     sv = np.linalg.svd(centred, compute_uv=False)
     if sv[2] <= 1e-6 * sv[0]:
