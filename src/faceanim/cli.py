@@ -148,7 +148,7 @@ def _write_expression(args, mesh, pose_delta, shapes) -> None:
 
 def _cmd_au(args) -> None:
     from .facs import default_library
-    from .transfer import ExpressionTransfer, default_model
+    from .transfer import CUTOFF, ExpressionTransfer, default_model
 
     lib = default_library()
     if args.emotion and args.au:
@@ -163,7 +163,8 @@ def _cmd_au(args) -> None:
     pose = xf.mixture_delta(model, {au: w * m for au, w in mix.items()}, side=args.side)
     shapes = {"pose": pose}
     if Path(args.output).suffix.lower() == ".glb":
-        shapes.update(xf.rig(model).blendshape_dict())
+        shapes.update(xf.rig(model, sides=args.halves).blendshape_dict())
+        shapes["pose"] = pose * (np.linalg.norm(pose, axis=1) >= CUTOFF * xf.frame.iod)[:, None]
     _write_expression(args, mesh, pose, shapes)
 
 
@@ -256,6 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--side", default="both", choices=["both", "L", "R"], help="one-sided action (subject's side)")
     a.add_argument("--method", default="surface", choices=["surface", "tps"], help="warp interpolant")
     a.add_argument("--landmarks", help="landmark JSON for the target instead of detection")
+    a.add_argument("--halves", action="store_true", help="GLB: also one-sided AUn_L / AUn_R morph targets")
     a.add_argument("-o", "--output", required=True, type=_output_path([".glb", ".png", ".obj", ".ply"]))
     a.add_argument("--size", type=int, default=512, help="PNG size")
     a.set_defaults(func=_cmd_au)

@@ -11,7 +11,7 @@ face by a landmark thin-plate spline (the thesis' own transfer, section 5.6.1).
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib import resources
 
@@ -33,6 +33,10 @@ FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365
 LIP_OUTER = (61, 185, 40, 39, 37, 0, 267, 269, 270, 409, 291, 375, 321, 405, 314, 17, 84, 181, 91, 146)
 EYE_RIGHT = (33, 246, 161, 160, 159, 158, 157, 173, 133, 155, 154, 153, 145, 144, 163, 7)
 EYE_LEFT = (263, 466, 388, 387, 386, 385, 384, 398, 362, 382, 381, 380, 374, 373, 390, 249)
+# a control point farther than this (IODs) from the skin is missing on that face; two closer
+# than MIN_SPACING are one
+MAX_SNAP = 0.12
+MIN_SPACING = 0.01
 # landmarks on bone that barely move with expressions: rigid alignment of expressive scans
 STABLE_LANDMARKS = (168, 6, 197, 195, 133, 362, 33, 263, 234, 454, 10, 151)
 
@@ -342,6 +346,7 @@ class ControlPoints:
     triangles: np.ndarray
     barycentric: np.ndarray
     positions: np.ndarray
+    missing: list[str] = field(default_factory=list)  # library points this face has no skin for
 
     def index(self, names) -> np.ndarray:
         where = {n: k for k, n in enumerate(self.names)}
@@ -363,9 +368,22 @@ def place_control_points(mesh: Mesh, lm478: np.ndarray, library: ActionUnitLibra
     target = np.stack([np.asarray(lm478)[list(s.at)].mean(0) + frame.vectors_to_mesh(np.array(s.offset)) * frame.iod
                        for s in specs])
     on_skin = skin(mesh, lm478)
-    pos, _, tri = mesh.closest_points(target, on_skin[mesh.faces].all(axis=1))
+    pos, dist, tri = mesh.closest_points(target, on_skin[mesh.faces].all(axis=1))
     tri = np.asarray(tri).copy()
     pos = np.asarray(pos).copy()
+    # a point the face has no skin for (under the chin of a face mask) is left out, and so is a
+    # point that lands on top of another one (two handles on one spot would tear the skin)
+    usable = np.asarray(dist) < MAX_SNAP * frame.iod
+    for k in range(len(specs)):
+        if usable[k] and k and (np.linalg.norm(pos[:k][usable[:k]] - pos[k], axis=1) < MIN_SPACING * frame.iod).any():
+            usable[k] = False
+    missing = [n for n, u in zip(names, usable) if not u]
+    if len(missing) == len(names):
+        raise LandmarkError(f"none of the control points lies on the surface of '{mesh.name}'; "
+                            "are the landmarks for this mesh?")
+    names = [n for n, u in zip(names, usable) if u]
+    specs = [s for s, u in zip(specs, usable) if u]
+    target, pos, tri = target[usable], pos[usable], tri[usable]
     if any(s.side_of for s in specs):
         sides = sides if sides is not None else slit_sides(mesh, lm478, library)
         vt = np.full(mesh.n_vertices, -1, dtype=np.int64)
@@ -382,4 +400,4 @@ def place_control_points(mesh: Mesh, lm478: np.ndarray, library: ActionUnitLibra
             tri[k] = vt[j]
             pos[k] = mesh.vertices[j]
     bary = mesh.barycentric(pos, tri)
-    return ControlPoints(names, tri, bary, pos)
+    return ControlPoints(names, tri, bary, pos, missing)

@@ -46,6 +46,7 @@ from .mesh import Mesh
 from .rig import Rig
 
 METHODS = ("surface", "tps")
+CUTOFF = 1e-4  # blendshape displacements below this many inter-ocular distances are zero
 
 
 def landmark_tps(source, target, what: str = "landmarks", merge_repeated: bool = False):
@@ -327,4 +328,9 @@ class ExpressionTransfer:
                 mix = self.library.emotion(name)
                 if all(a in model.samples for a in mix):
                     shapes[name] = self.mixture_delta(model, mix)
+        # the interpolant's far tails (under a micrometre on a real face) are set to exactly zero,
+        # so each morph target touches only the skin its action moves (sparse in glTF)
+        floor = CUTOFF * self.frame.iod
+        for d in shapes.values():
+            d[np.linalg.norm(d, axis=1) < floor] = 0.0
         return Rig(self.mesh, shapes)
