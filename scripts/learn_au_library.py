@@ -47,7 +47,7 @@ def main(argv=None):
     for au, pose in sorted(AU_SOURCE.items()):
         if pose not in cache:
             cache[pose] = learn_expression(neutral, load_mesh(args.data / f"pose_{pose}.obj"), lm, library=lib)
-        sample = cache[pose].subset(lib.action_unit(au).points)
+        sample = cache[pose].subset([p for p in lib.action_unit(au).points if p in cache[pose].names])
         sample.source = f"{args.data.name}/pose_{pose} ({FACEWAREHOUSE_EXPRESSIONS[pose]})"
         model.samples[au] = sample
         print(f"AU{au:<3d} {lib.action_unit(au).name:<22s} <- pose_{pose} ({FACEWAREHOUSE_EXPRESSIONS[pose]})")

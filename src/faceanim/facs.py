@@ -371,16 +371,12 @@ def place_control_points(mesh: Mesh, lm478: np.ndarray, library: ActionUnitLibra
     pos, dist, tri = mesh.closest_points(target, on_skin[mesh.faces].all(axis=1))
     tri = np.asarray(tri).copy()
     pos = np.asarray(pos).copy()
-    # a point the face has no skin for (under the chin of a face mask) is left out, and so is a
-    # point that lands on top of another one (two handles on one spot would tear the skin)
+    # a point the face has no skin for (under the chin of a face mask) is left out
     usable = np.asarray(dist) < MAX_SNAP * frame.iod
-    for k in range(len(specs)):
-        if usable[k] and k and (np.linalg.norm(pos[:k][usable[:k]] - pos[k], axis=1) < MIN_SPACING * frame.iod).any():
-            usable[k] = False
-    missing = [n for n, u in zip(names, usable) if not u]
-    if len(missing) == len(names):
+    if not usable.any():
         raise LandmarkError(f"none of the control points lies on the surface of '{mesh.name}'; "
                             "are the landmarks for this mesh?")
+    missing = [n for n, u in zip(names, usable) if not u]
     names = [n for n, u in zip(names, usable) if u]
     specs = [s for s, u in zip(specs, usable) if u]
     target, pos, tri = target[usable], pos[usable], tri[usable]
@@ -399,5 +395,17 @@ def place_control_points(mesh: Mesh, lm478: np.ndarray, library: ActionUnitLibra
             j = cand[np.argmin(np.linalg.norm(mesh.vertices[cand] - target[k], axis=1))]
             tri[k] = vt[j]
             pos[k] = mesh.vertices[j]
+    # two points on one spot would tear the skin: keep the first, unless they sit on the two
+    # sides of a closed slit (upper and lower lip of a closed mouth), which move apart freely
+    keep = np.ones(len(names), dtype=bool)
+    for k in range(1, len(names)):
+        close = np.flatnonzero(keep[:k] & (np.linalg.norm(pos[:k] - pos[k], axis=1) < MIN_SPACING * frame.iod))
+        for j in close:
+            a, b = specs[j], specs[k]
+            if not (a.side_of and a.side_of == b.side_of and a.lid != b.lid):
+                keep[k] = False
+    missing += [n for n, u in zip(names, keep) if not u]
+    names = [n for n, u in zip(names, keep) if u]
+    pos, tri = pos[keep], tri[keep]
     bary = mesh.barycentric(pos, tri)
     return ControlPoints(names, tri, bary, pos, missing)
