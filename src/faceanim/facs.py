@@ -35,7 +35,7 @@ EYE_RIGHT = (33, 246, 161, 160, 159, 158, 157, 173, 133, 155, 154, 153, 145, 144
 EYE_LEFT = (263, 466, 388, 387, 386, 385, 384, 398, 362, 382, 381, 380, 374, 373, 390, 249)
 # a control point farther than this (IODs) from the skin is missing on that face; two closer
 # than MIN_SPACING are one
-MAX_SNAP = 0.12
+MAX_SNAP = 0.25
 MIN_SPACING = 0.01
 # landmarks on bone that barely move with expressions: rigid alignment of expressive scans
 STABLE_LANDMARKS = (168, 6, 197, 195, 133, 362, 33, 263, 234, 454, 10, 151)
