@@ -125,9 +125,9 @@ def main(argv=None):
     for label, (n, e) in rows.items():
         e = np.asarray(e)
         print(f"| {label} | {n} | {np.median(e):.3f} | {e.mean():.3f} | {e.max():.3f} |")
-    print("\nper expression (faceanim: AU points, surface):")
-    e = rows["faceanim: AU points, surface"][1]
-    print(" ".join(f"{n}:{x:.2f}" for n, x in zip(names, e)))
+    for label in ("thesis: AU points, TPS per face half", "faceanim: AU points, surface"):
+        print(f"\nper expression ({label}):")
+        print(" ".join(f"{n}:{x:.2f}" for n, x in zip(names, rows[label][1])))
     print(f"\n({time.time() - t0:.0f} s)")
 
 

@@ -268,7 +268,9 @@ def free_region(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame | None = None) -
     local = frame.to_local(mesh.vertices)
     p = frame.to_local(np.asarray(lm478))
     near = face.copy()
-    dist = _graph_distance(mesh, np.flatnonzero(face), limit=0.35 * frame.iod)
+    from .transfer import FREE_MARGIN
+
+    dist = _graph_distance(mesh, np.flatnonzero(face), limit=FREE_MARGIN * frame.iod)
     near |= np.isfinite(dist)
     jaw = (local[:, 1] < p[13, 1]) & (local[:, 1] > p[152, 1] - 0.9 * frame.iod) & \
           (local[:, 2] > min(p[234, 2], p[454, 2]) + 0.1 * frame.iod)

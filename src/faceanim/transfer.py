@@ -46,6 +46,7 @@ from .mesh import Mesh
 from .rig import Rig
 
 METHODS = ("surface", "tps")
+FREE_MARGIN = 0.35  # IODs of skin around the face outline that expressions may still move
 CUTOFF = 1e-4  # blendshape displacements below this many inter-ocular distances are zero
 
 
@@ -250,20 +251,22 @@ class ExpressionTransfer:
                                     self.points.barycentric, self.free, handle_names=names)
             self._operators = {r: deformer for r in ("upper", "lower")}
             return
-        # the thesis: one TPS per face half over that half's points plus fixed anchors on the oval
-        oval = self.lm[list(FACE_OVAL)]
-        self._operators = {}
-        rows = np.flatnonzero(self.free)
-        for r, sel in self._regions.items():
-            pts = self.points.positions[sel]
-            far = np.linalg.norm(oval[:, None] - pts[None], axis=2).min(1) > 0.05 * self.frame.iod
-            handles = np.vstack([pts, oval[far]])
-            system = RadialBasis(handles, "thin_plate_spline", smoothing=0.0)
-            w = system.weights(self.mesh.vertices[rows])[:, : len(pts)]
-            full = np.zeros((len(rows), len(names)))
-            full[:, np.flatnonzero(sel)] = w
-            from .deform.base import LinearDeformer
+        # the thesis (5.6.2): one TPS per face half over that half's control points (eq. 4.19),
+        # evaluated on the face; beyond the face outline the warp fades out over the margin of
+        # the free region instead of extrapolating (the thesis' faces were cropped there)
+        from .deform.base import LinearDeformer
+        from .facs import _graph_distance, face_region
 
+        face = face_region(self.mesh, self.lm, self.frame)
+        dist = _graph_distance(self.mesh, np.flatnonzero(face), limit=FREE_MARGIN * self.frame.iod)
+        t = np.clip(1.0 - dist / (FREE_MARGIN * self.frame.iod), 0.0, 1.0)
+        fade = np.where(np.isfinite(dist), t * t * (3 - 2 * t), 0.0)
+        rows = np.flatnonzero(self.free & (fade > 0))
+        self._operators = {}
+        for r, sel in self._regions.items():
+            system = RadialBasis(self.points.positions[sel], "thin_plate_spline", smoothing=0.0)
+            full = np.zeros((len(rows), len(names)))
+            full[:, np.flatnonzero(sel)] = system.weights(self.mesh.vertices[rows]) * fade[rows, None]
             self._operators[r] = LinearDeformer(self.mesh.vertices, full, rows, handle_names=names)
 
     def offsets(self, sample: ExpressionSample, magnitude: float = 1.0) -> np.ndarray:
