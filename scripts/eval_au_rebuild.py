@@ -109,6 +109,24 @@ def main(argv=None):
     for method, label in (("tps", "thesis: AU points, TPS per face half"), ("surface", "faceanim: AU points, surface")):
         xf = ExpressionTransfer(neutral, lm, lib, method=method)
         rows[label] = (len(xf.points.names), [err(xf.points_delta(s, aus), k) for k, s in enumerate(samples)])
+    # the curve: fewer points (the thesis' eight AUs) and more (the 60 plus uniform fill)
+    eight = lib.parse_action_units("1,2,4,12,14,15,17,20")
+    xf = ExpressionTransfer(neutral, lm, lib, method="surface")
+    keep = sorted({p for a in eight for p in lib.action_unit(a).points} & set(xf.points.names))
+    sub = ExpressionTransfer(neutral, lm, lib, method="surface", names=keep)
+    rows["faceanim: the thesis' 8 AUs' points, surface"] = (len(keep), [
+        err(sub.points_delta(s, eight), k) for k, s in enumerate(samples)])
+    cp = xf.points
+    for n in (120, 240):
+        extra = fidx[farthest_points(v0[fidx], n - len(cp.names), cp.positions)]
+        vt = np.full(len(v0), -1)
+        vt[neutral.faces.ravel()] = np.repeat(np.arange(neutral.n_faces), 3)
+        tri = np.concatenate([cp.triangles, vt[extra]])
+        bary = np.concatenate([cp.barycentric, (neutral.faces[vt[extra]] == extra[:, None]).astype(float)])
+        op = bind_surface(v0, neutral.faces, tri, bary, xf.free)
+        rows[f"faceanim: AU points + uniform fill to {n}, surface"] = (n, [
+            err(op.displacements(np.vstack([xf.offsets(s), a[extra] - v0[extra]])), k)
+            for k, (s, a) in enumerate(zip(samples, aligned[1:]))])
     if args.landmark_learning:
         xf = ExpressionTransfer(neutral, lm, lib, method="surface")
         errs = []
