@@ -183,8 +183,16 @@ def face_frame(lm478: np.ndarray) -> FaceFrame:
     x = x / iod
     up = (p[33] + p[263]) / 2 - p[152]
     y = up - x * (up @ x)
-    y /= np.linalg.norm(y)
+    height = np.linalg.norm(y)
+    if not (0.2 < mouth / iod < 2.0 and 0.5 < height / iod < 4.0):
+        raise LandmarkError(
+            f"the landmarks do not have a face's proportions (mouth width {mouth / iod:.2f}, eyes to chin "
+            f"{height / iod:.2f} inter-ocular distances); they are out of order or not for this face")
+    y /= height
     z = np.cross(x, y)
+    if (p[4] - (p[33] + p[263]) / 2) @ z <= 0:
+        raise LandmarkError("the nose tip lies behind the eyes in these landmarks: they are mirrored "
+                            "(left and right swapped) or out of order")
     return FaceFrame(p[4].copy(), np.stack([x, y, z]), iod, mouth)
 
 

@@ -67,11 +67,11 @@ def landmark_tps(source, target, what: str = "landmarks", merge_repeated: bool =
         _, first = np.unique(np.round(src / (1e-6 * scale)).astype(np.int64), axis=0, return_index=True)
         first = np.sort(first)
         src, dst = src[first], dst[first]
-    centred = src - src.mean(0)
-    sv = np.linalg.svd(centred, compute_uv=False)
-    if sv[2] <= 1e-6 * sv[0]:
-        raise LandmarkError(f"the source {what} are coplanar (or collinear): a 3D thin-plate spline needs "
-                            "landmarks off one plane (eyes, nose tip and mouth are not)")
+    for label, pts in (("source", src), ("target", dst)):
+        sv = np.linalg.svd(pts - pts.mean(0), compute_uv=False)
+        if sv[2] <= 1e-6 * sv[0]:
+            raise LandmarkError(f"the {label} {what} are coplanar (or collinear): a 3D thin-plate spline "
+                                "needs landmarks off one plane (eyes, nose tip and mouth are not)")
     try:
         system = RadialBasis(src, "thin_plate_spline", smoothing=0.0)
     except DeformError as exc:

@@ -1,0 +1,123 @@
+"""faceanim au / transfer / preprocess: outputs match the library; bad input exits 2, no output."""
+
+import json
+
+import numpy as np
+import pytest
+
+from conftest import FACEWAREHOUSE, need
+from faceanim.cli import main
+from faceanim.facs import landmarks_478
+from faceanim.landmarks import BASIC22, Landmarks
+from faceanim.mesh import load_mesh, save_mesh
+from faceanim.transfer import ExpressionTransfer, default_model
+
+
+@pytest.fixture
+def face_files(tmp_path, base_face):
+    mesh = tmp_path / "face.obj"
+    save_mesh(base_face, mesh)
+    lm = tmp_path / "face.landmarks.json"
+    lm.write_text(json.dumps({"scheme": "mediapipe478", "points": [
+        {"index": i, "position": base_face.vertices[i].tolist()} for i in range(478)]}))
+    return mesh, lm
+
+
+def _run(args, capsys=None):
+    return main([str(a) for a in args])
+
+
+def test_au_matches_the_library(tmp_path, face_files, base_face):
+    mesh, lm = face_files
+    out = tmp_path / "au12.obj"
+    assert _run(["au", mesh, "--au", "12", "--magnitude", "0.5", "--landmarks", lm, "-o", out]) == 0
+    got = load_mesh(out)
+    lms = landmarks_478(base_face, Landmarks.load(lm).attached_to(base_face))
+    xf = ExpressionTransfer(base_face, lms)
+    want = base_face.vertices + xf.action_unit_delta(default_model(), 12, 0.5)
+    np.testing.assert_allclose(got.vertices, want, atol=1e-7)
+    assert got.n_vertices == base_face.n_vertices and got.texture is not None
+    assert np.abs(got.vertices - base_face.vertices).max() > 1e-3  # the corners really moved
+
+
+def test_emotion_glb_carries_named_morph_targets(tmp_path, face_files):
+    import pygltflib
+
+    mesh, lm = face_files
+    out = tmp_path / "joy.glb"
+    assert _run(["au", mesh, "--emotion", "joy", "--landmarks", lm, "-o", out]) == 0
+    names = pygltflib.GLTF2().load(str(out)).meshes[0].extras["targetNames"]
+    assert {"pose", "AU12", "AU6", "joy", "sadness", "surprise", "fear", "anger", "disgust"} <= set(names)
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--au", "99"], "unknown action unit AU99"),
+    (["--au", "12", "--magnitude", "1.5"], "[0, 1]"),
+    (["--emotion", "boredom"], "unknown emotion"),
+    (["--au", "12", "--emotion", "joy"], "not both"),
+    ([], "give --au"),
+])
+def test_au_bad_arguments(tmp_path, face_files, capsys, extra, message):
+    mesh, lm = face_files
+    out = tmp_path / "x.obj"
+    assert _run(["au", mesh, "--landmarks", lm, "-o", out] + extra) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists() and not list(tmp_path.glob(".x*"))
+
+
+def test_bad_landmarks(tmp_path, face_files, base_face, capsys):
+    mesh, _ = face_files
+    out = tmp_path / "x.obj"
+    # too few landmarks
+    few = tmp_path / "few.json"
+    few.write_text(json.dumps({"points": [{"index": i, "position": base_face.vertices[i].tolist()}
+                                          for i in (1, 4, 33)]}))
+    assert _run(["au", mesh, "--au", "1", "--landmarks", few, "-o", out]) == 2
+    assert "missing" in capsys.readouterr().err
+    # out of order: the face's landmarks upside down (eyes where the mouth is)
+    flipped = tmp_path / "flipped.json"
+    v = base_face.vertices.copy()
+    v[:, 1] = -v[:, 1]
+    flipped.write_text(json.dumps({"points": [{"index": i, "position": v[i].tolist()} for i in range(478)]}))
+    assert _run(["au", mesh, "--au", "1", "--landmarks", flipped, "-o", out]) == 2
+    assert "error" in capsys.readouterr().err
+    # the basic 22 on three surface points only (repeated, all in one plane): degenerate TPS
+    flat = tmp_path / "flat.json"
+    pts = [{"index": i, "position": base_face.vertices[(4, 33, 263)[k % 3]].tolist()}
+           for k, (_, i) in enumerate(BASIC22)]
+    flat.write_text(json.dumps({"points": pts}))
+    assert _run(["au", mesh, "--au", "1", "--landmarks", flat, "-o", out]) == 2
+    assert "coplanar" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_au_from_the_basic22_landmarks(tmp_path, face_files, base_face):
+    """The thesis' path: only 22 landmarks; the rest come from the default face by TPS."""
+    mesh, _ = face_files
+    lm22 = tmp_path / "lm22.json"
+    lm22.write_text(json.dumps({"points": [{"index": i, "name": n, "position": base_face.vertices[i].tolist()}
+                                           for n, i in BASIC22]}))
+    out = tmp_path / "au4.obj"
+    assert _run(["au", mesh, "--au", "4", "--landmarks", lm22, "-o", out]) == 0
+    moved = np.linalg.norm(load_mesh(out).vertices - base_face.vertices, axis=1)
+    brow = base_face.vertices[[105, 334], 1].mean()
+    assert moved[base_face.vertices[:, 1] > brow - 0.01].max() > moved[base_face.vertices[:, 1] < base_face.vertices[2, 1]].max()
+
+
+def test_preprocess_writes_grid_and_landmarks(tmp_path, face_files):
+    mesh, lm = face_files
+    out = tmp_path / "grid.obj"
+    assert _run(["preprocess", mesh, "--landmarks", lm, "--grid", "40", "-o", out]) == 0
+    grid = load_mesh(out)
+    assert 0.5 * 1600 < grid.n_vertices <= 1600
+    pts = json.loads((tmp_path / "grid.landmarks.json").read_text())["points"]
+    assert len(pts) == 478 and np.allclose(pts[4]["position"], 0, atol=0.05)  # nose tip at the origin
+
+
+def test_transfer_from_a_real_scan_pair(tmp_path, face_files):
+    mesh, lm = face_files
+    s0 = need(FACEWAREHOUSE / "pose_0.obj")
+    out = tmp_path / "smile.glb"
+    assert _run(["transfer", "--source-neutral", s0, "--source-expressive", FACEWAREHOUSE / "pose_2.obj",
+                 "--target", mesh, "--landmarks", lm, "--au", "12", "--magnitude", "0.8", "-o", out]) == 0
+    assert out.stat().st_size > 1000
