@@ -125,3 +125,25 @@ def test_rebuild_real_expression_beats_landmark_tps():
     rebuilt = xf.points_delta(sample, default_library().parse_action_units("all"))
     err = np.linalg.norm((rebuilt - real)[face]) / np.linalg.norm(real[face])
     assert err < 0.4  # measured 0.31; no motion is 1.0, the 22-landmark TPS ~0.5
+
+
+def test_learning_without_correspondence_recovers_a_known_motion(face, face_landmarks):
+    """Thesis 5.5.3 on a synthetic pair: landmark TPS + snapping finds the control points' motion."""
+    from faceanim.facs import face_frame
+    from faceanim.landmarks import Landmarks
+    from faceanim.transfer import learn_expression
+
+    lm = landmarks_478(face, face_landmarks)
+    y = face.vertices[:, 1]
+    chin_y, mouth_y = lm[152, 1], lm[14, 1]
+    t = np.clip((mouth_y - y) / (mouth_y - chin_y), 0, 1)
+    shift = np.array([0.0, -0.006, 0.0])  # 6 mm down, growing from the mouth to the chin
+    expressive = face.with_vertices(face.vertices + t[:, None] * shift)
+    moved = Landmarks(face_landmarks.scheme, face_landmarks.names, face_landmarks.indices,
+                      face_landmarks.on(expressive), face_landmarks.triangles, face_landmarks.barycentric)
+    sample = learn_expression(face, expressive, lm, landmarks_478(expressive, moved), method="landmarks")
+    frame = face_frame(lm)
+    chin = frame.vectors_to_mesh(sample.displacements[sample.names.index("chin")]) * frame.mouth_width
+    brow = frame.vectors_to_mesh(sample.displacements[sample.names.index("brow_inner_R")]) * frame.iod
+    assert abs(chin[1] - shift[1]) < 0.15 * abs(shift[1])
+    assert np.linalg.norm(brow) < 0.1 * abs(shift[1])

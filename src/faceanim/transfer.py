@@ -41,6 +41,7 @@ from .facs import (
     free_region,
     place_control_points,
     region_weights,
+    skin,
 )
 from .mesh import Mesh
 from .rig import Rig
