@@ -34,14 +34,16 @@ def main():
     print("|---|---|---|")
     rows = {}
     for method in ("surface", "tps"):
-        t_bind, xf = best(lambda: ExpressionTransfer(face, lm, method=method), 2)
-        t_rig, rig = best(lambda: xf.rig(model, sides=False), 1)
-        rng = np.random.default_rng(0)
-        curves = rng.uniform(0, 1, size=(1000, len(rig.names)))
+        def bind(method=method):
+            return ExpressionTransfer(face, lm, method=method)
+
+        t_bind, xf = best(bind, 2)
+        t_rig, rig = best(lambda xf=xf: xf.rig(model, sides=False), 1)
+        curves = np.random.default_rng(0).uniform(0, 1, size=(1000, len(rig.names)))
         rig.evaluate(curves[:10])
-        t_frames, _ = best(lambda: rig.evaluate(curves), 3)
-        # baseline: re-solve the warp per frame (bind + apply), timed on a few frames
-        t_naive, _ = best(lambda: ExpressionTransfer(face, lm, method=method).mixture_delta(model, {12: 0.5}), 1)
+        t_frames, _ = best(lambda rig=rig, curves=curves: rig.evaluate(curves), 3)
+        # baseline: re-solve the warp for one frame (bind + apply)
+        t_naive, _ = best(lambda: bind().mixture_delta(model, {12: 0.5}), 1)
         rows[method] = (t_bind, t_rig, len(rig.names), t_frames, t_naive)
     for k, label in enumerate(("bind (place, regions, solve)", "compile blendshapes")):
         print(f"| {label} | " + " | ".join(f"{rows[m][k]:.2f} s" for m in rows) + " |")

@@ -4,8 +4,8 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import FACEWAREHOUSE, need
+
 from faceanim.cli import main
 from faceanim.facs import landmarks_478
 from faceanim.landmarks import BASIC22, Landmarks

@@ -1,11 +1,17 @@
 import numpy as np
 import pytest
+from conftest import FACEWAREHOUSE, need
 from scipy.interpolate import RBFInterpolator
 
-from conftest import FACEWAREHOUSE, need
 from faceanim.deform.surface import bind_surface, cotangent_laplacian
 from faceanim.errors import FaceAnimError, LandmarkError
-from faceanim.facs import ActionUnitError, default_library, face_region, landmarks_478, region_weights
+from faceanim.facs import (
+    ActionUnitError,
+    default_library,
+    face_region,
+    landmarks_478,
+    region_weights,
+)
 from faceanim.mesh import Mesh
 from faceanim.transfer import ExpressionTransfer, default_model, landmark_tps
 

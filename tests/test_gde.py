@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-import scipy.sparse.csgraph as csgraph
+from scipy.sparse import csgraph
 
 from faceanim.deform import GeometryDeformationElement as GDE
 from faceanim.deform import bind_element, bind_gdes

@@ -7,8 +7,8 @@ import subprocess
 import numpy as np
 import pygltflib
 import pytest
-
 from conftest import ROOT
+
 from faceanim.export.gltf import write_gltf
 
 VALIDATOR = ROOT / "tools" / "validate_gltf.js"

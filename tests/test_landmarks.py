@@ -8,8 +8,8 @@ ray that hit the back of the head, and loose enough for the real ambiguity of th
 
 import numpy as np
 import pytest
-
 from conftest import FACEWAREHOUSE, ICT, need
+
 from faceanim.errors import LandmarkError
 from faceanim.landmarks import Landmarks, detect_landmarks, detect_landmarks_in_image
 from faceanim.mesh import load_mesh

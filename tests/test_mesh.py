@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-
 from conftest import FACEWAREHOUSE, ICT, need
+
 from faceanim.errors import MeshError
 from faceanim.mesh import Mesh, load_mesh, save_mesh
 

@@ -4,8 +4,18 @@ import pytest
 from faceanim.errors import LandmarkError
 from faceanim.facs import face_frame, landmarks_478
 from faceanim.landmarks import BASIC22
-from faceanim.preprocess import (CHIN, EYE_OUTER_L, EYE_OUTER_R, NOSE_TIP, apply_transform, build_average_face,
-                                 default_average_face, normalising_transform, preprocess, resample_to_grid)
+from faceanim.preprocess import (
+    CHIN,
+    EYE_OUTER_L,
+    EYE_OUTER_R,
+    NOSE_TIP,
+    apply_transform,
+    build_average_face,
+    default_average_face,
+    normalising_transform,
+    preprocess,
+    resample_to_grid,
+)
 
 
 @pytest.fixture(scope="module")

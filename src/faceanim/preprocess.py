@@ -54,7 +54,6 @@ class GridFace:
 
 def _grid_faces(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two triangles per grid cell whose four corners are valid; vertex numbering over valid cells."""
-    n, m = valid.shape
     number = np.full(valid.shape, -1, dtype=np.int64)
     number[valid] = np.arange(valid.sum())
     a, b = number[:-1, :-1], number[:-1, 1:]
@@ -111,7 +110,7 @@ def resample_to_grid(mesh: Mesh, lm478: np.ndarray, n: int = DEFAULT_GRID, crop:
     else:
         inside = (np.linalg.norm(flat, axis=1) < radius * frame.iod).reshape(gz.shape)
     valid = np.isfinite(gz) & inside
-    number, tris = _grid_faces(valid)
+    _, tris = _grid_faces(valid)
     if len(tris) == 0:
         raise MeshError(f"no grid cell of '{mesh.name}' has scan data; check the landmarks")
     grid_local = np.stack([gx[valid], gy[valid], gz[valid]], 1)
@@ -159,7 +158,7 @@ def apply_transform(t: np.ndarray, points: np.ndarray) -> np.ndarray:
     return p @ t[:3, :3].T + t[:3, 3]
 
 
-def preprocess(mesh: Mesh, lm478: np.ndarray, reference: "AverageFace | None" = None, n: int = DEFAULT_GRID,
+def preprocess(mesh: Mesh, lm478: np.ndarray, reference: AverageFace | None = None, n: int = DEFAULT_GRID,
                crop: str = "oval") -> GridFace:
     """Thesis 5.4 end to end: grid resampling, landmark carry-over, normalisation to the AFM."""
     grid = resample_to_grid(mesh, lm478, n, crop)
@@ -195,14 +194,13 @@ class AverageFace:
     def save(self, path) -> None:
         from .fileio import atomic_output
 
-        with atomic_output(path) as tmp:
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, x=self.x.astype(np.float32), y=self.y.astype(np.float32),
-                                    depth=self.depth.astype(np.float32), landmarks=self.landmarks,
-                                    sources=np.array(self.sources))
+        with atomic_output(path) as tmp, open(tmp, "wb") as fh:
+            np.savez_compressed(fh, x=self.x.astype(np.float32), y=self.y.astype(np.float32),
+                                depth=self.depth.astype(np.float32), landmarks=self.landmarks,
+                                sources=np.array(self.sources))
 
     @classmethod
-    def load(cls, path) -> "AverageFace":
+    def load(cls, path) -> AverageFace:
         with np.load(path) as d:
             return cls(d["x"].astype(np.float64), d["y"].astype(np.float64), d["depth"].astype(np.float64),
                        d["landmarks"], tuple(str(s) for s in d["sources"]))

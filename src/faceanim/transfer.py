@@ -30,7 +30,6 @@ from .deform.rbf import RadialBasis, check_points
 from .deform.surface import bind_surface
 from .errors import DeformError, LandmarkError, MeshError
 from .facs import (
-    FACE_OVAL,
     STABLE_LANDMARKS,
     ActionUnitError,
     ActionUnitLibrary,
