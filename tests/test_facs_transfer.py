@@ -153,3 +153,12 @@ def test_learning_without_correspondence_recovers_a_known_motion(face, face_land
     brow = frame.vectors_to_mesh(sample.displacements[sample.names.index("brow_inner_R")]) * frame.iod
     assert abs(chin[1] - shift[1]) < 0.15 * abs(shift[1])
     assert np.linalg.norm(brow) < 0.1 * abs(shift[1])
+
+
+def test_target_without_a_face_region_is_refused(base_face, rng):
+    from faceanim.facs import free_region
+
+    lm = base_face.vertices[:478].copy()
+    away = base_face.with_vertices(base_face.vertices + [0.0, 0.0, -1.0])  # the face 1 m behind its landmarks
+    with pytest.raises(LandmarkError, match="face outline"):
+        free_region(away, lm)
