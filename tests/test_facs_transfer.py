@@ -162,3 +162,21 @@ def test_target_without_a_face_region_is_refused(base_face, rng):
     away = base_face.with_vertices(base_face.vertices + [0.0, 0.0, -1.0])  # the face 1 m behind its landmarks
     with pytest.raises(LandmarkError, match="face outline"):
         free_region(away, lm)
+
+
+def test_aus_from_one_scan_share_its_measurement(transfer):
+    """AU1 and AU2 were both learned from the brow raise: together they rebuild it once, not twice."""
+    model = default_model()
+    assert model.samples[1].source == model.samples[2].source
+    both = transfer.mixture_delta(model, {1: 1.0, 2: 1.0})
+    one_scan = model.samples[1]
+    names = sorted(set(model.samples[1].names) | set(model.samples[2].names))
+    merged = {n: d for s in (model.samples[1], model.samples[2]) for n, d in zip(s.names, s.displacements)}
+    from faceanim.transfer import ExpressionSample
+
+    want = transfer.delta(ExpressionSample(names, np.array([merged[n] for n in names]), one_scan.source))
+    np.testing.assert_allclose(both, want, atol=1e-12)
+    # AUs from different scans add
+    mix = transfer.mixture_delta(model, {4: 0.5, 12: 0.7})
+    np.testing.assert_allclose(mix, transfer.action_unit_delta(model, 4, 0.5) + transfer.action_unit_delta(model, 12, 0.7),
+                               atol=1e-12)

@@ -309,12 +309,32 @@ class ExpressionTransfer:
         return self.delta(sample.subset(keep), magnitude)
 
     def mixture_delta(self, model: ActionUnitModel, weights: dict[int, float], side: str = "both") -> np.ndarray:
-        """Several AUs at once. Their displacements add where they share a control point."""
-        out = np.zeros_like(self.mesh.vertices)
+        """Several AUs at once (an emotion, a mix).
+
+        Motions measured on different scans add up. AUs learned from the same scan (AU1 and AU2
+        from one brow raise) share that scan's measurement at their common points: it is used
+        once there, at the larger of their magnitudes, not once per AU.
+        """
+        groups: dict[str, dict[str, tuple[float, np.ndarray]]] = {}
         for au, m in weights.items():
-            if m:
-                out += self.action_unit_delta(model, au, self.library.intensity(m), side)
-        return out
+            m = self.library.intensity(m)
+            unit = self.library.action_unit(au)
+            if unit.number not in model.samples:
+                raise ActionUnitError(f"AU{unit.number} has no learned displacements in this model")
+            sample = model.samples[unit.number]
+            where = {n: k for k, n in enumerate(sample.names)}
+            group = groups.setdefault(sample.source or f"AU{unit.number}", {})
+            for n in unit.points_on(side):
+                if n in where and (n not in group or m > group[n][0]):
+                    group[n] = (m, sample.displacements[where[n]])
+        total: dict[str, np.ndarray] = {}
+        for group in groups.values():
+            for n, (m, d) in group.items():
+                total[n] = total.get(n, 0.0) + m * d
+        if not total:
+            return np.zeros_like(self.mesh.vertices)
+        names = list(total)
+        return self.delta(ExpressionSample(names, np.array([total[n] for n in names])))
 
     def rig(self, model: ActionUnitModel, emotions: bool = True, sides: bool = True) -> Rig:
         """Every AU of the model (and its one-sided halves) and every emotion as named blendshapes."""
