@@ -90,6 +90,7 @@ class ActionUnitLibrary:
             for n, d in data["control_points"].items()}
         self.slits = {n: {k: tuple(v) for k, v in d.items()} for n, d in data["slits"].items()}
         self.masks = data["region_masks"]
+        self.anchors = tuple(int(i) for i in data.get("anchors", ()))
         self.action_units = {
             int(k): ActionUnit(int(k), d["name"], d["muscle"], d["region"], tuple(d["muscle_points"]),
                                tuple(d["wrinkle_points"]))

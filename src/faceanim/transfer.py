@@ -42,6 +42,7 @@ from .facs import (
     region_weights,
     skin,
 )
+from .facs import MAX_SNAP, MIN_SPACING
 from .mesh import Mesh
 from .rig import Rig
 
@@ -246,9 +247,21 @@ class ExpressionTransfer:
 
     def _bind(self):
         names = self.points.names
+        self._n_anchors = 0
         if self.method == "surface":
-            deformer = bind_surface(self.mesh.vertices, self.mesh.faces, self.points.triangles,
-                                    self.points.barycentric, self.free, handle_names=names)
+            # fixed anchors at the top of the forehead (the paper's anchors): the skin at the
+            # hairline stays put, also on a face mask that ends there
+            ids = list(self.library.anchors)
+            on_skin = skin(self.mesh, self.lm)
+            pos, dist, tri = self.mesh.closest_points(self.lm[ids], on_skin[self.mesh.faces].all(axis=1))
+            near = np.linalg.norm(pos[:, None] - self.points.positions[None], axis=2).min(1)
+            ok = (dist < MAX_SNAP * self.frame.iod) & (near > MIN_SPACING * self.frame.iod)
+            tri, bary = np.asarray(tri)[ok], self.mesh.barycentric(pos[ok], np.asarray(tri)[ok])
+            self._n_anchors = int(ok.sum())
+            deformer = bind_surface(self.mesh.vertices, self.mesh.faces,
+                                    np.concatenate([self.points.triangles, tri]),
+                                    np.concatenate([self.points.barycentric, bary]), self.free,
+                                    handle_names=names + [f"anchor{i}" for i in np.asarray(ids)[ok]])
             self._operators = {r: deformer for r in ("upper", "lower")}
             return
         # the thesis (5.6.2): one TPS per face half over that half's control points (eq. 4.19),
@@ -286,6 +299,7 @@ class ExpressionTransfer:
             dr = np.where(self._regions[r][:, None], d, 0.0)
             if not dr.any():
                 continue
+            dr = np.vstack([dr, np.zeros((self._n_anchors, 3))])
             op = self._operators[r]
             out += op.displacements(dr) * self.region[r][:, None]
         return out
