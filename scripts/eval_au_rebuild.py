@@ -31,7 +31,7 @@ from faceanim.landmarks import BASIC22, detect_landmarks
 from faceanim.mesh import load_mesh
 from faceanim.transfer import (
     ExpressionTransfer,
-    _stable_vertices,
+    skull_vertices,
     learn_expression,
     rigid_align,
 )
@@ -66,7 +66,7 @@ def main(argv=None):
     lm = landmarks_478(neutral, detect_landmarks(neutral))
     frame = face_frame(lm)
     lib = default_library()
-    stable = _stable_vertices(neutral, lm, frame)
+    stable = skull_vertices(neutral, lm, frame)
     aligned = []
     for m in meshes:
         r, t = rigid_align(m.vertices[stable], neutral.vertices[stable])

@@ -117,13 +117,13 @@ def test_rebuild_real_expression_beats_landmark_tps():
     """The thesis' test on a real scan pair: smile (pose_2) rebuilt from 60 control points."""
     from faceanim.landmarks import detect_landmarks
     from faceanim.mesh import load_mesh
-    from faceanim.transfer import _stable_vertices, learn_expression, rigid_align
+    from faceanim.transfer import skull_vertices, learn_expression, rigid_align
 
     n = load_mesh(need(FACEWAREHOUSE / "pose_0.obj"))
     e = load_mesh(FACEWAREHOUSE / "pose_2.obj")
     lm = landmarks_478(n, detect_landmarks(n))
     xf = ExpressionTransfer(n, lm)
-    stable = _stable_vertices(n, lm, xf.frame)
+    stable = skull_vertices(n, lm, xf.frame)
     r, t = rigid_align(e.vertices[stable], n.vertices[stable])
     real = e.vertices @ r.T + t - n.vertices
     face = face_region(n, lm)

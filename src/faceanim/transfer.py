@@ -14,10 +14,10 @@ z forward) and divided by its inter-ocular distance (upper face) or mouth width 
 so they rotate and scale onto any target.
 
 Interpolants: ``tps`` is the thesis' 3D thin-plate spline ``f(x) = [1 x y z] A + sum w_i
-U(|P_i - x|)`` (eq. 4.19) over the half's control points plus fixed anchors on the face oval;
+U(|P_i - x|)`` (eq. 4.19) over the half's control points, faded out beyond the face outline;
 ``surface`` (default) is faceanim's biharmonic interpolation along the skin
-(:mod:`faceanim.deform.surface`), which does not couple the lips across the mouth or the lids
-across the eye.
+(:mod:`faceanim.deform.surface`) with a few fixed anchors at the top of the forehead, which does
+not couple the lips across the mouth or the lids across the eye.
 """
 
 from __future__ import annotations
@@ -30,6 +30,8 @@ from .deform.rbf import RadialBasis, check_points
 from .deform.surface import bind_surface
 from .errors import DeformError, LandmarkError, MeshError
 from .facs import (
+    MAX_SNAP,
+    MIN_SPACING,
     STABLE_LANDMARKS,
     ActionUnitError,
     ActionUnitLibrary,
@@ -42,7 +44,6 @@ from .facs import (
     region_weights,
     skin,
 )
-from .facs import MAX_SNAP, MIN_SPACING
 from .mesh import Mesh
 from .rig import Rig
 
@@ -79,12 +80,11 @@ def landmark_tps(source, target, what: str = "landmarks", merge_repeated: bool =
         raise LandmarkError(f"{what}: {exc}") from None
     coeff = system.coefficients(dst - src)
 
-    class _Warp:
-        def __call__(self, points):
-            p = np.asarray(points, dtype=np.float64)
-            return p + system.basis(p) @ coeff
+    def warp(points):
+        p = np.asarray(points, dtype=np.float64)
+        return p + system.basis(p) @ coeff
 
-    return _Warp()
+    return warp
 
 
 def rigid_align(moving: np.ndarray, fixed: np.ndarray, keep: float = 0.5,
@@ -107,7 +107,7 @@ def rigid_align(moving: np.ndarray, fixed: np.ndarray, keep: float = 0.5,
     return r, t
 
 
-def _stable_vertices(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame) -> np.ndarray:
+def skull_vertices(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame) -> np.ndarray:
     """Vertices for rigid alignment of two scans: the skull above the mouth, outside the
     region expressions move (none on a face mask: then stable landmarks are used)."""
     free = free_region(mesh, lm478, frame)
@@ -166,7 +166,7 @@ def learn_expression(neutral: Mesh, expressive: Mesh, neutral_lm478: np.ndarray,
         if not same:
             raise MeshError(f"'{expressive.name}' has another topology than '{neutral.name}' "
                             f"({expressive.n_vertices} vs {neutral.n_vertices} vertices); use method 'landmarks'")
-        stable = _stable_vertices(neutral, neutral_lm478, frame)
+        stable = skull_vertices(neutral, neutral_lm478, frame)
         if len(stable):
             r, t = rigid_align(expressive.vertices[stable], neutral.vertices[stable])
         else:
@@ -180,7 +180,8 @@ def learn_expression(neutral: Mesh, expressive: Mesh, neutral_lm478: np.ndarray,
         idx = list(STABLE_LANDMARKS)
         r, t = rigid_align(np.asarray(expressive_lm478)[idx], np.asarray(neutral_lm478)[idx])
         exp_lm = np.asarray(expressive_lm478) @ r.T + t
-        warp = landmark_tps(neutral_lm478, exp_lm)
+        # the face's 468 points (the irises lie on the eyeballs); detection can put two on one spot
+        warp = landmark_tps(np.asarray(neutral_lm478)[:468], exp_lm[:468], merge_repeated=True)
         aligned = expressive.with_vertices(expressive.vertices @ r.T + t)
         on_skin = skin(expressive, expressive_lm478)
         moved, _, _ = aligned.closest_points(warp(points.positions), on_skin[expressive.faces].all(axis=1))
