@@ -96,8 +96,7 @@ def main(argv=None):
         h = np.concatenate([sel, anchors])
         w = RadialBasis(v0[h], "thin_plate_spline", smoothing=0.0).weights(v0)[:, :n]
         rows[f"uniform {n} + border anchors, TPS"] = (n, [err(w @ (a[sel] - v0[sel]), k) for k, a in enumerate(aligned[1:])])
-        vt = np.full(len(v0), -1)
-        vt[neutral.faces.ravel()] = np.repeat(np.arange(neutral.n_faces), 3)
+        vt = neutral.vertex_triangle
         b = (neutral.faces[vt[h]] == h[:, None]).astype(float)
         op = bind_surface(v0, neutral.faces, vt[h], b, None)
         rows[f"uniform {n} + border anchors, surface"] = (n, [
@@ -119,8 +118,7 @@ def main(argv=None):
     cp = xf.points
     for n in (120, 240):
         extra = fidx[farthest_points(v0[fidx], n - len(cp.names), cp.positions)]
-        vt = np.full(len(v0), -1)
-        vt[neutral.faces.ravel()] = np.repeat(np.arange(neutral.n_faces), 3)
+        vt = neutral.vertex_triangle
         tri = np.concatenate([cp.triangles, vt[extra]])
         bary = np.concatenate([cp.barycentric, (neutral.faces[vt[extra]] == extra[:, None]).astype(float)])
         op = bind_surface(v0, neutral.faces, tri, bary, xf.free)

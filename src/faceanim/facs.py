@@ -393,8 +393,7 @@ def place_control_points(mesh: Mesh, lm478: np.ndarray, library: ActionUnitLibra
     target, pos, tri = target[usable], pos[usable], tri[usable]
     if any(s.side_of for s in specs):
         sides = sides if sides is not None else slit_sides(mesh, lm478, library)
-        vt = np.full(mesh.n_vertices, -1, dtype=np.int64)
-        vt[mesh.faces.ravel()[::-1]] = np.repeat(np.arange(mesh.n_faces), 3)[::-1]
+        vt = mesh.vertex_triangle
         for k, s in enumerate(specs):
             if not s.side_of:
                 continue

@@ -262,14 +262,8 @@ def _cast_onto_surface(mesh, origins, dirs, rot) -> tuple[np.ndarray, np.ndarray
             near = np.asarray(tree.query_ball_point(point, d + 0.5 * mesh.mean_edge_length))
             v[k] = near[view[near, 2].argmax()]
         pos[~hit] = mesh.vertices[v]
-        tri[~hit] = _vertex_triangle(mesh)[v]
+        tri[~hit] = mesh.vertex_triangle[v]
     return pos, tri
-
-
-def _vertex_triangle(mesh) -> np.ndarray:
-    vt = np.full(mesh.n_vertices, -1, dtype=np.int64)
-    vt[mesh.faces.ravel()[::-1]] = np.repeat(np.arange(mesh.n_faces), 3)[::-1]
-    return vt
 
 
 def _face_frame(mesh, rot: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ vertex order. Polygons are triangulated as fans; OBJ output writes the original 
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -148,9 +149,28 @@ class Mesh:
         allowed = np.flatnonzero(allowed) if allowed.dtype == bool else allowed.astype(np.int64)
         if allowed.size == 0:
             raise MeshError(f"no triangles of '{self.name}' to search for closest points")
-        part = trimesh.Trimesh(self.vertices, self.faces[allowed], process=False, validate=False)
+        if allowed.size == self.n_faces:
+            closest, dist, tri = trimesh.proximity.closest_point(self.trimesh, pts)
+            return closest, dist, tri
+        # the part's search tree is kept: a rig asks about the same part (the skin) many times
+        key = hashlib.sha1(allowed.tobytes()).hexdigest()
+        part = self._parts.get(key)
+        if part is None:
+            part = self._parts[key] = trimesh.Trimesh(self.vertices, self.faces[allowed], process=False,
+                                                      validate=False)
         closest, dist, tri = trimesh.proximity.closest_point(part, pts)
         return closest, dist, allowed[np.asarray(tri)]
+
+    @cached_property
+    def _parts(self) -> dict:
+        return {}
+
+    @cached_property
+    def vertex_triangle(self) -> np.ndarray:
+        """One triangle that uses each vertex (the first in face order; -1 for a loose vertex)."""
+        vt = np.full(self.n_vertices, -1, dtype=np.int64)
+        vt[self.faces.ravel()[::-1]] = np.repeat(np.arange(self.n_faces), 3)[::-1]
+        return vt
 
     @cached_property
     def vertex_components(self) -> np.ndarray:
