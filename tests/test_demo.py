@@ -12,11 +12,13 @@ def test_demo_writes_glb_mp4_and_pngs(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--fps", "5", "--size", "128", "--quiet"]) == 0
     names = {p.name for p in out.iterdir()}
-    assert names == {"demo.glb", "demo.mp4", "neutral.png", "smile.png", "sadness.png", "anger.png", "A.png"}
-    assert "wrote 7 files" in capsys.readouterr().out
+    gde = ["smile", "sadness", "anger", "A"]
+    facs = [f"facs_{e}" for e in ("joy", "sadness", "surprise", "fear", "anger", "disgust")]
+    assert names == {"demo.glb", "demo.mp4", "neutral.png"} | {f"{n}.png" for n in gde + facs}
+    assert "wrote 13 files" in capsys.readouterr().out
 
     gltf = pygltflib.GLTF2().load(str(out / "demo.glb"))
-    assert gltf.meshes[0].extras["targetNames"] == ["smile", "sadness", "anger", "A"]
+    assert gltf.meshes[0].extras["targetNames"] == gde + facs
     n_keys = gltf.accessors[gltf.animations[0].samplers[0].input].count
 
     reader = imageio_ffmpeg.read_frames(str(out / "demo.mp4"))
@@ -25,7 +27,7 @@ def test_demo_writes_glb_mp4_and_pngs(tmp_path, capsys):
     assert sum(1 for _ in reader) == n_keys  # one video frame per animation sample
 
     neutral = np.asarray(Image.open(out / "neutral.png")).astype(float)
-    for name in ["smile", "sadness", "anger", "A"]:
+    for name in gde + facs:
         img = np.asarray(Image.open(out / f"{name}.png")).astype(float)
         changed = np.abs(img - neutral).mean(-1) > 20
         assert 20 < changed.sum() < 0.25 * changed.size  # the face changed, locally

@@ -1,9 +1,12 @@
-"""The demo: the default face, four expressions made of GDEs, written as GLB, MP4 and PNGs.
+"""The demo: the default face, expressions from two papers, written as GLB, MP4 and PNGs.
 
-The expressions follow the seed paper's examples (figures 5, 7-9): a smile from the mouth
-corners and cheeks, sadness from lowered corners and raised inner brows, anger from lowered,
-drawn-together brows and pressed lips, and the mouth shape for 'A' from the jaw and lower lip.
-Offsets and extents are in metres, placed at landmarks of the default face.
+Four expressions made of geometry deformation elements follow Noh et al.'s examples (figures 5,
+7-9): a smile from the mouth corners and cheeks, sadness from lowered corners and raised inner
+brows, anger from lowered, drawn-together brows and pressed lips, and the mouth shape for 'A'
+from the jaw and lower lip (offsets and extents in metres, placed at landmarks of the default
+face). The six basic emotions come from FACS action units learned from real scans (Erdogdu),
+transferred to the default face by its landmarks; they are named ``facs_joy`` ..
+``facs_disgust`` (the GDE set has its own ``sadness`` and ``anger``).
 """
 
 from __future__ import annotations
@@ -49,6 +52,15 @@ def demo_expressions(lm) -> list[Expression]:
     return [smile, sadness, anger, mouth_a]
 
 
+def emotion_blendshapes(mesh, lm) -> dict[str, np.ndarray]:
+    """The six basic emotions on ``mesh`` from the built-in action-unit library, ``facs_<name>``."""
+    from .facs import landmarks_478
+    from .transfer import ExpressionTransfer, default_model
+
+    rig = ExpressionTransfer(mesh, landmarks_478(mesh, lm)).rig(default_model(), sides=False)
+    return {f"facs_{name}": d for name, d in rig.blendshape_dict().items() if not name.startswith("AU")}
+
+
 def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = 30.0, size: int = 512,
              quiet: bool = False) -> list[Path]:
     """Build the default face and its expressions; write demo.glb, demo.mp4 and PNGs to ``out_dir``."""
@@ -58,7 +70,9 @@ def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = 30.0, size: int
     out.mkdir(parents=True, exist_ok=True)
     mesh = default_face()
     lm = default_landmarks(mesh)
-    rig = Rig.from_expressions(mesh, demo_expressions(lm))
+    shapes = Rig.from_expressions(mesh, demo_expressions(lm)).blendshape_dict()
+    shapes.update(emotion_blendshapes(mesh, lm))
+    rig = Rig(mesh, shapes)
     tour = expression_tour(rig.names)
     times, weights = tour.sample(fps)
     written = [write_gltf(out / "demo.glb", mesh, rig.blendshape_dict(), times, weights)]
