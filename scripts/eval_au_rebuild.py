@@ -29,12 +29,7 @@ from faceanim.facs import (
 )
 from faceanim.landmarks import BASIC22, detect_landmarks
 from faceanim.mesh import load_mesh
-from faceanim.transfer import (
-    ExpressionTransfer,
-    skull_vertices,
-    learn_expression,
-    rigid_align,
-)
+from faceanim.transfer import ExpressionTransfer, learn_expression, points_on_landmarks, rigid_align, skull_vertices
 
 
 def farthest_points(points, n, start):
@@ -125,14 +120,16 @@ def main(argv=None):
         rows[f"faceanim: AU points + uniform fill to {n}, surface"] = (n, [
             err(op.displacements(np.vstack([xf.offsets(s), a[extra] - v0[extra]])), k)
             for k, (s, a) in enumerate(zip(samples, aligned[1:]))])
+    # the thesis' learning without correspondences (5.5.3): landmark TPS + snapping, with the
+    # expressive scans' landmarks as if marked by hand (the neutral ones followed onto the scan)
+    # and, with --landmark-learning, as detected on every scan
+    modes = [("hand-marked", lambda m: points_on_landmarks(m, neutral, lm))]
     if args.landmark_learning:
-        xf = ExpressionTransfer(neutral, lm, lib, method="surface")
-        errs = []
-        for k, m in enumerate(meshes[1:]):
-            lm_k = landmarks_478(m, detect_landmarks(m))
-            s = learn_expression(neutral, m, lm, lm_k, lib, method="landmarks")
-            errs.append(err(xf.points_delta(s, aus), k))
-        rows["faceanim, learned by landmark TPS + snapping"] = (len(xf.points.names), errs)
+        modes.append(("detected on each scan", lambda m: landmarks_478(m, detect_landmarks(m))))
+    for label, landmarks_of in modes:
+        errs = [err(xf.points_delta(learn_expression(neutral, m, lm, landmarks_of(m), lib, method="landmarks"),
+                                    aus), k) for k, m in enumerate(meshes[1:])]
+        rows[f"faceanim, learned by landmark TPS + snapping, landmarks {label}"] = (len(xf.points.names), errs)
 
     names = [f.stem for f in files[1:]]
     print(f"\n{args.data}: {len(real)} expressions, face region {len(fidx)} of {neutral.n_vertices} vertices\n")
