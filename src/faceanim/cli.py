@@ -175,8 +175,8 @@ def _cmd_transfer(args) -> None:
     lib = default_library()
     m = lib.intensity(args.magnitude)
     aus = lib.parse_action_units(args.au)
-    s0, lm0 = _face_and_landmarks(args.source_neutral, None)
-    s1, lm1 = _face_and_landmarks(args.source_expressive, None)
+    s0, lm0 = _face_and_landmarks(args.source_neutral, args.source_neutral_landmarks)
+    s1, lm1 = _face_and_landmarks(args.source_expressive, args.source_expressive_landmarks)
     sample = learn_expression(s0, s1, lm0, lm1, lib)
     mesh, lm = _face_and_landmarks(args.target, args.landmarks)
     xf = ExpressionTransfer(mesh, lm, lib, method=args.method)
@@ -265,6 +265,10 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("transfer", help="learn AUs from a neutral/expressive scan pair and apply them to a target")
     t.add_argument("--source-neutral", required=True)
     t.add_argument("--source-expressive", required=True)
+    t.add_argument("--source-neutral-landmarks", metavar="JSON", help="landmarks of the neutral scan (else detected)")
+    t.add_argument("--source-expressive-landmarks", metavar="JSON",
+                   help="landmarks of the expressive scan; for scans of another topology, hand-marked landmarks "
+                        "learn far better than detected ones")
     t.add_argument("--target", default="default", help="mesh (default: the embedded default face)")
     t.add_argument("--au", default="all", help="action units whose control points move: 12, 1,2 or all")
     t.add_argument("--magnitude", default="1.0", help="m in [0, 1] or a FACS intensity A-E")
