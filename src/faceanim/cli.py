@@ -125,7 +125,7 @@ def _face_and_landmarks(path, landmarks_file):
     return mesh, landmarks_478(mesh, lms)
 
 
-def _write_expression(args, mesh, pose_delta, shapes) -> None:
+def _write_expression(args, mesh, pose_delta, shapes, lm478) -> None:
     """The posed face as OBJ/PLY/GLB (GLB: rest mesh + every blendshape as a morph target,
     the requested pose as the default weights) or a PNG render."""
     from .export.gltf import write_gltf
@@ -134,7 +134,10 @@ def _write_expression(args, mesh, pose_delta, shapes) -> None:
 
     suffix = Path(args.output).suffix.lower()
     if suffix == ".png":
-        render_png(mesh, args.output, vertices=mesh.vertices + pose_delta, size=(args.size, args.size), yaw=0, pitch=0)
+        from .facs import FACE_OVAL
+
+        render_png(mesh, args.output, vertices=mesh.vertices + pose_delta, size=(args.size, args.size), yaw=12,
+                   pitch=3, frame_vertices=np.asarray(lm478)[list(FACE_OVAL)], margin=1.25)
     elif suffix == ".glb":
         names = list(shapes)
         times = np.array([0.0, 1.0, 2.0])
@@ -165,7 +168,7 @@ def _cmd_au(args) -> None:
     if Path(args.output).suffix.lower() == ".glb":
         shapes.update(xf.rig(model, sides=args.halves).blendshape_dict())
         shapes["pose"] = pose * (np.linalg.norm(pose, axis=1) >= CUTOFF * xf.frame.iod)[:, None]
-    _write_expression(args, mesh, pose, shapes)
+    _write_expression(args, mesh, pose, shapes, lm)
 
 
 def _cmd_transfer(args) -> None:
@@ -181,7 +184,7 @@ def _cmd_transfer(args) -> None:
     mesh, lm = _face_and_landmarks(args.target, args.landmarks)
     xf = ExpressionTransfer(mesh, lm, lib, method=args.method)
     pose = xf.points_delta(sample, aus, m, side=args.side)
-    _write_expression(args, mesh, pose, {"pose": pose / m if m else pose})
+    _write_expression(args, mesh, pose, {"pose": pose / m if m else pose}, lm)
 
 
 def _cmd_preprocess(args) -> None:

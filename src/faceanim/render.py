@@ -201,9 +201,12 @@ def save_png(path: str | os.PathLike, image: np.ndarray) -> Path:
 
 
 def render_png(mesh: Mesh, path: str | os.PathLike, vertices: np.ndarray | None = None,
-               size=(512, 512), yaw: float = 0.0, pitch: float = 0.0) -> Path:
-    """Render one view of ``mesh`` to a PNG file."""
-    with OffscreenRenderer(mesh, size=size, yaw=yaw, pitch=pitch) as r:
+               size=(512, 512), yaw: float = 0.0, pitch: float = 0.0,
+               frame_vertices: np.ndarray | None = None, margin: float = 1.08) -> Path:
+    """Render one view of ``mesh`` to a PNG file (framed on ``frame_vertices`` if given, e.g.
+    the face of a full head)."""
+    with OffscreenRenderer(mesh, size=size, yaw=yaw, pitch=pitch, frame_vertices=frame_vertices,
+                           margin=margin) as r:
         return save_png(path, r.render(vertices))
 
 
