@@ -29,7 +29,13 @@ from faceanim.facs import (
 )
 from faceanim.landmarks import BASIC22, detect_landmarks
 from faceanim.mesh import load_mesh
-from faceanim.transfer import ExpressionTransfer, learn_expression, points_on_landmarks, rigid_align, skull_vertices
+from faceanim.transfer import (
+    ExpressionTransfer,
+    learn_expression,
+    points_on_landmarks,
+    rigid_align,
+    skull_vertices,
+)
 
 
 def farthest_points(points, n, start):

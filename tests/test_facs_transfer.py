@@ -9,11 +9,12 @@ from faceanim.facs import (
     ActionUnitError,
     default_library,
     face_region,
+    landmark_tps,
     landmarks_478,
     region_weights,
 )
 from faceanim.mesh import Mesh
-from faceanim.transfer import ExpressionTransfer, default_model, landmark_tps
+from faceanim.transfer import ExpressionTransfer, default_model
 
 
 def grid_mesh(n=21):
@@ -117,7 +118,7 @@ def test_rebuild_real_expression_beats_landmark_tps():
     """The thesis' test on a real scan pair: smile (pose_2) rebuilt from 60 control points."""
     from faceanim.landmarks import detect_landmarks
     from faceanim.mesh import load_mesh
-    from faceanim.transfer import skull_vertices, learn_expression, rigid_align
+    from faceanim.transfer import learn_expression, rigid_align, skull_vertices
 
     n = load_mesh(need(FACEWAREHOUSE / "pose_0.obj"))
     e = load_mesh(FACEWAREHOUSE / "pose_2.obj")

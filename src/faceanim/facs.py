@@ -19,7 +19,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from .errors import FaceAnimError, LandmarkError
+from .deform.rbf import RadialBasis, check_points
+from .errors import DeformError, FaceAnimError, LandmarkError
 from .landmarks import BASIC22, Landmarks
 from .mesh import Mesh
 
@@ -37,6 +38,8 @@ EYE_LEFT = (263, 466, 388, 387, 386, 385, 384, 398, 362, 382, 381, 380, 374, 373
 # than MIN_SPACING are one
 MAX_SNAP = 0.25
 MIN_SPACING = 0.01
+# inter-ocular distances of skin around the face outline that expressions may still move
+FREE_MARGIN = 0.35
 # landmarks on bone that barely move with expressions: rigid alignment of expressive scans
 STABLE_LANDMARKS = (168, 6, 197, 195, 133, 362, 33, 263, 234, 454, 10, 151)
 
@@ -213,13 +216,47 @@ def landmarks_478(mesh: Mesh, landmarks: Landmarks) -> np.ndarray:
             f"action units need the 478 MediaPipe landmarks or the basic 22; missing: {', '.join(missing[:6])}"
             + (" ..." if len(missing) > 6 else "") + " (run `faceanim landmarks` on the mesh)")
     from .default_face import default_face
-    from .transfer import landmark_tps
 
     ref = default_face(dense=False).vertices[:478]
     tps = landmark_tps(ref[need], landmarks.positions[[where[i] for i in need]], "basic 22 landmarks")
     moved = tps(ref)
     pos, _, _ = mesh.closest_points(moved)
     return pos
+
+
+def landmark_tps(source, target, what: str = "landmarks", merge_repeated: bool = False):
+    """The thesis' 3D thin-plate spline through landmark pairs (eqs. 4.11-4.19).
+
+    Returns a callable ``f(points)`` mapping points near ``source`` to points near ``target``.
+    Repeated or coplanar landmarks make the system singular: refused with a clear error, unless
+    ``merge_repeated`` (dense detected sets such as MediaPipe's 478, where two points can land on
+    one vertex): then only the first of each repeated source point is kept.
+    """
+    src = check_points(source, f"source {what}", min_count=5)
+    dst = check_points(target, f"target {what}", min_count=5)
+    if src.shape != dst.shape:
+        raise LandmarkError(f"source and target {what} differ in count: {len(src)} vs {len(dst)}")
+    if merge_repeated:
+        scale = np.ptp(src, axis=0).max()
+        _, first = np.unique(np.round(src / (1e-6 * scale)).astype(np.int64), axis=0, return_index=True)
+        first = np.sort(first)
+        src, dst = src[first], dst[first]
+    for label, pts in (("source", src), ("target", dst)):
+        sv = np.linalg.svd(pts - pts.mean(0), compute_uv=False)
+        if sv[2] <= 1e-6 * sv[0]:
+            raise LandmarkError(f"the {label} {what} are coplanar (or collinear): a 3D thin-plate spline "
+                                "needs landmarks off one plane (eyes, nose tip and mouth are not)")
+    try:
+        system = RadialBasis(src, "thin_plate_spline", smoothing=0.0)
+    except DeformError as exc:
+        raise LandmarkError(f"{what}: {exc}") from None
+    coeff = system.coefficients(dst - src)
+
+    def warp(points):
+        p = np.asarray(points, dtype=np.float64)
+        return p + system.basis(p) @ coeff
+
+    return warp
 
 
 def skin(mesh: Mesh, lm478: np.ndarray) -> np.ndarray:
@@ -277,8 +314,6 @@ def free_region(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame | None = None) -
     local = frame.to_local(mesh.vertices)
     p = frame.to_local(np.asarray(lm478))
     near = face.copy()
-    from .transfer import FREE_MARGIN
-
     dist = _graph_distance(mesh, np.flatnonzero(face), limit=FREE_MARGIN * frame.iod)
     near |= np.isfinite(dist)
     jaw = (local[:, 1] < p[13, 1]) & (local[:, 1] > p[152, 1] - 0.9 * frame.iod) & \

@@ -28,7 +28,7 @@ import numpy as np
 from scipy.interpolate import griddata
 
 from .errors import LandmarkError, MeshError
-from .facs import FACE_OVAL, face_frame
+from .facs import FACE_OVAL, face_frame, landmark_tps
 from .landmarks import BASIC22
 from .mesh import Mesh
 
@@ -213,7 +213,6 @@ def _normalised_landmarks(lm478: np.ndarray) -> np.ndarray:
 
 def build_average_face(faces, n: int = DEFAULT_GRID) -> AverageFace:
     """Average face model from neutral faces: ``faces`` is a sequence of (name, mesh, lm478)."""
-    from .transfer import landmark_tps
 
     faces = list(faces)
     if not faces:

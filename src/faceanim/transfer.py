@@ -26,10 +26,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .deform.rbf import RadialBasis, check_points
+from .deform.rbf import RadialBasis
 from .deform.surface import bind_surface
 from .errors import DeformError, LandmarkError, MeshError
 from .facs import (
+    FREE_MARGIN,
     MAX_SNAP,
     MIN_SPACING,
     STABLE_LANDMARKS,
@@ -40,6 +41,7 @@ from .facs import (
     default_library,
     face_frame,
     free_region,
+    landmark_tps,
     place_control_points,
     region_weights,
     skin,
@@ -48,43 +50,7 @@ from .mesh import Mesh
 from .rig import Rig
 
 METHODS = ("surface", "tps")
-FREE_MARGIN = 0.35  # IODs of skin around the face outline that expressions may still move
 CUTOFF = 1e-4  # blendshape displacements below this many inter-ocular distances are zero
-
-
-def landmark_tps(source, target, what: str = "landmarks", merge_repeated: bool = False):
-    """The thesis' 3D thin-plate spline through landmark pairs (eqs. 4.11-4.19).
-
-    Returns a callable ``f(points)`` mapping points near ``source`` to points near ``target``.
-    Repeated or coplanar landmarks make the system singular: refused with a clear error, unless
-    ``merge_repeated`` (dense detected sets such as MediaPipe's 478, where two points can land on
-    one vertex): then only the first of each repeated source point is kept.
-    """
-    src = check_points(source, f"source {what}", min_count=5)
-    dst = check_points(target, f"target {what}", min_count=5)
-    if src.shape != dst.shape:
-        raise LandmarkError(f"source and target {what} differ in count: {len(src)} vs {len(dst)}")
-    if merge_repeated:
-        scale = np.ptp(src, axis=0).max()
-        _, first = np.unique(np.round(src / (1e-6 * scale)).astype(np.int64), axis=0, return_index=True)
-        first = np.sort(first)
-        src, dst = src[first], dst[first]
-    for label, pts in (("source", src), ("target", dst)):
-        sv = np.linalg.svd(pts - pts.mean(0), compute_uv=False)
-        if sv[2] <= 1e-6 * sv[0]:
-            raise LandmarkError(f"the {label} {what} are coplanar (or collinear): a 3D thin-plate spline "
-                                "needs landmarks off one plane (eyes, nose tip and mouth are not)")
-    try:
-        system = RadialBasis(src, "thin_plate_spline", smoothing=0.0)
-    except DeformError as exc:
-        raise LandmarkError(f"{what}: {exc}") from None
-    coeff = system.coefficients(dst - src)
-
-    def warp(points):
-        p = np.asarray(points, dtype=np.float64)
-        return p + system.basis(p) @ coeff
-
-    return warp
 
 
 def rigid_align(moving: np.ndarray, fixed: np.ndarray, keep: float = 0.5,
