@@ -121,3 +121,15 @@ def test_transfer_from_a_real_scan_pair(tmp_path, face_files):
     assert _run(["transfer", "--source-neutral", s0, "--source-expressive", FACEWAREHOUSE / "pose_2.obj",
                  "--target", mesh, "--landmarks", lm, "--au", "12", "--magnitude", "0.8", "-o", out]) == 0
     assert out.stat().st_size > 1000
+
+
+def test_preprocess_bad_reference(tmp_path, face_files, capsys):
+    mesh, lm = face_files
+    out = tmp_path / "grid.obj"
+    assert _run(["preprocess", mesh, "--landmarks", lm, "--reference", tmp_path / "nope.npz", "-o", out]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    bad = tmp_path / "bad.npz"
+    bad.write_text("not a model")
+    assert _run(["preprocess", mesh, "--landmarks", lm, "--reference", bad, "-o", out]) == 2
+    assert "not an average face model" in capsys.readouterr().err
+    assert not out.exists()

@@ -125,14 +125,16 @@ def _face_and_landmarks(path, landmarks_file):
     return mesh, landmarks_478(mesh, lms)
 
 
-def _write_expression(args, mesh, pose_delta, shapes, lm478) -> None:
-    """The posed face as OBJ/PLY/GLB (GLB: rest mesh + every blendshape as a morph target,
-    the requested pose as the default weights) or a PNG render."""
+def _write_expression(args, mesh, lm478, shapes, pose: str, weight: float) -> None:
+    """The face posed with blendshape ``pose`` at ``weight`` as OBJ/PLY or a PNG render; GLB:
+    the rest mesh with every blendshape as a morph target and a short animation of ``pose``
+    from 0 to ``weight`` and back."""
     from .export.gltf import write_gltf
     from .mesh import save_mesh
     from .render import render_png
 
     suffix = Path(args.output).suffix.lower()
+    pose_delta = shapes[pose] * weight
     if suffix == ".png":
         from .facs import FACE_OVAL
 
@@ -142,7 +144,7 @@ def _write_expression(args, mesh, pose_delta, shapes, lm478) -> None:
         names = list(shapes)
         times = np.array([0.0, 1.0, 2.0])
         w = np.zeros((3, len(names)))
-        w[1, names.index("pose")] = 1.0
+        w[1, names.index(pose)] = weight
         write_gltf(args.output, mesh, shapes, times=times, weights=w, animation_name="expression")
     else:
         save_mesh(mesh, args.output, vertices=mesh.vertices + pose_delta)
@@ -168,7 +170,7 @@ def _cmd_au(args) -> None:
     if Path(args.output).suffix.lower() == ".glb":
         shapes.update(xf.rig(model, sides=args.halves).blendshape_dict())
         shapes["pose"] = pose * (np.linalg.norm(pose, axis=1) >= CUTOFF * xf.frame.iod)[:, None]
-    _write_expression(args, mesh, pose, shapes, lm)
+    _write_expression(args, mesh, lm, shapes, "pose", 1.0)
 
 
 def _cmd_transfer(args) -> None:
@@ -183,8 +185,8 @@ def _cmd_transfer(args) -> None:
     sample = learn_expression(s0, s1, lm0, lm1, lib)
     mesh, lm = _face_and_landmarks(args.target, args.landmarks)
     xf = ExpressionTransfer(mesh, lm, lib, method=args.method)
-    pose = xf.points_delta(sample, aus, m, side=args.side)
-    _write_expression(args, mesh, pose, {"pose": pose / m if m else pose}, lm)
+    full = xf.points_delta(sample, aus, 1.0, side=args.side)
+    _write_expression(args, mesh, lm, {"expression": full}, "expression", m)
 
 
 def _cmd_preprocess(args) -> None:
