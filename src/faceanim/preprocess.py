@@ -201,9 +201,18 @@ class AverageFace:
 
     @classmethod
     def load(cls, path) -> AverageFace:
-        with np.load(path) as d:
-            return cls(d["x"].astype(np.float64), d["y"].astype(np.float64), d["depth"].astype(np.float64),
-                       d["landmarks"], tuple(str(s) for s in d["sources"]))
+        from pathlib import Path
+
+        from .errors import InputFileError
+
+        if not Path(path).is_file():
+            raise InputFileError(f"average face model '{path}' does not exist; check the path")
+        try:
+            with np.load(path) as d:
+                return cls(d["x"].astype(np.float64), d["y"].astype(np.float64), d["depth"].astype(np.float64),
+                           d["landmarks"], tuple(str(s) for s in d["sources"]))
+        except (OSError, ValueError, KeyError, EOFError) as exc:
+            raise InputFileError(f"'{path}' is not an average face model written by faceanim ({exc})") from None
 
 
 def _normalised_landmarks(lm478: np.ndarray) -> np.ndarray:
