@@ -207,6 +207,93 @@ def _cmd_preprocess(args) -> None:
     print(f"wrote {args.output} ({grid.mesh.n_vertices} grid vertices of {args.grid}x{args.grid}) and {lm_path}")
 
 
+def _wire_base(args):
+    from .facewires import default_wires
+
+    mesh, lm = _face_and_landmarks(args.base, args.landmarks)
+    return mesh, lm, default_wires(lm)
+
+
+def _cmd_wires_extract(args) -> None:
+    from .facewires import extract_template
+    from .mesh import load_mesh
+
+    from .facs import face_region
+    from .facewires import align_template
+
+    base, lm, wireset = _wire_base(args)
+    template = load_mesh(args.template)
+    if not args.no_align:
+        template = align_template(base, template, lm)
+    bound = wireset.bind(base, lm)
+    t = extract_template(base, template, wireset, bound)
+    face = face_region(base, lm)
+    moved = np.linalg.norm((template.vertices - base.vertices)[face])
+    err = np.linalg.norm((t.rebuild(base, bound) - template.vertices)[face]) / moved if moved > 0 else 0.0
+    t.save(args.output)
+    print(f"wrote {args.output}: {len(wireset.wires)} wires, {t.n_numbers} numbers for the template's "
+          f"{3 * template.n_vertices} ({3 * template.n_vertices / t.n_numbers:.0f}x smaller); rebuild error "
+          f"{err:.3f} of the template's motion over the face")
+
+
+def _cmd_wires_apply(args) -> None:
+    from .facewires import WireTemplate, edit_template, parse_edits
+    from .fileio import read_json
+
+    base, lm, _ = _wire_base(args)
+    t = WireTemplate.load(args.wires)
+    if args.edit:
+        moves, scales = parse_edits(read_json(args.edit, "edit file"), t.wireset)
+        t = edit_template(t, moves, scales)
+    delta = t.rebuild(base, lm478=lm) - base.vertices
+    _write_expression(args, base, lm, {"expression": delta}, "expression", 1.0)
+
+
+def _cmd_wires_blend(args) -> None:
+    from .export.gltf import write_gltf
+    from .facewires import WireTemplate, blend_blendshapes, blending_function
+    from .render import OffscreenRenderer, write_video
+
+    base, lm, _ = _wire_base(args)
+    a, b = WireTemplate.load(args.source), WireTemplate.load(args.to)
+    for t, name in ((a, args.source), (b, args.to)):
+        if t.n_vertices != base.n_vertices:
+            raise FaceAnimError(f"'{name}' was extracted on a base with {t.n_vertices} vertices, "
+                                f"'{args.base}' has {base.n_vertices}")
+    if args.frames < 2:
+        raise FaceAnimError("--frames must be at least 2")
+    functions = {"eyes": args.eyes, "mouth": args.mouth}
+    for item in args.group or []:
+        if "=" not in item:
+            raise FaceAnimError(f"--group takes NAME=FUNCTION, got '{item}'")
+        k, v = item.split("=", 1)
+        functions[k] = v
+    shapes = blend_blendshapes(a, b, a.wireset.bind(base, lm))
+    unknown = set(functions) - set(shapes)
+    if unknown - {"eyes", "mouth"}:
+        raise FaceAnimError(f"no wire group {', '.join(sorted(unknown))}; the groups are "
+                            f"{', '.join(n for n in shapes if n != 'from')}")
+    names = list(shapes)
+    ts = np.linspace(0.0, 1.0, args.frames)
+    weights = np.zeros((len(ts), len(names)))
+    weights[:, 0] = 1.0
+    for c, name in enumerate(names[1:], start=1):
+        weights[:, c] = blending_function(functions.get(name, "linear"))(ts)
+    times = np.arange(len(ts)) / args.fps
+    if Path(args.output).suffix.lower() == ".glb":
+        write_gltf(args.output, base, shapes, times=times, weights=weights, animation_name="blend")
+    else:
+        from .rig import Rig
+
+        frames = Rig(base, shapes).evaluate(weights)
+        from .facs import FACE_OVAL
+
+        with OffscreenRenderer(base, size=(args.size, args.size), yaw=12, pitch=3,
+                               frame_vertices=np.asarray(lm)[list(FACE_OVAL)], margin=1.25) as r:
+            write_video(args.output, (r.render(v) for v in frames), fps=args.fps)
+    print(f"wrote {args.output} ({args.frames} frames)")
+
+
 def _output_path(suffixes):
     def check(value: str) -> str:
         if Path(value).suffix.lower() not in suffixes:
@@ -294,6 +381,39 @@ def build_parser() -> argparse.ArgumentParser:
     pp.add_argument("--reference", help="average face model (.npz) to normalise to (default: faceanim's)")
     pp.add_argument("--no-normalise", action="store_true", help="resample only, keep the scan's pose and size")
     pp.set_defaults(func=_cmd_preprocess)
+
+    w = sub.add_parser("wires", help="wire curves: extract from expression templates, apply, edit, blend")
+    wsub = w.add_subparsers(dest="wires_command", required=True)
+    we = wsub.add_parser("extract", help="fit the default wires of a base face to an expression template")
+    we.add_argument("--base", required=True, help="neutral face mesh")
+    we.add_argument("--template", required=True, help="the expression, same topology as the base")
+    we.add_argument("--landmarks", help="landmark JSON for the base instead of detection")
+    we.add_argument("--no-align", action="store_true",
+                    help="keep the template's pose (by default it is aligned rigidly on the skull first)")
+    we.add_argument("-o", "--output", required=True, type=_output_path([".json"]))
+    we.set_defaults(func=_cmd_wires_extract)
+    wa = wsub.add_parser("apply", help="rebuild an expression from its wires on the base face")
+    wa.add_argument("--base", required=True)
+    wa.add_argument("--wires", required=True, help="a .wires.json from `faceanim wires extract`")
+    wa.add_argument("--edit", help='JSON edits: {"edits": [{"wire": "upper_lip", "control": 3, "offset": [0, 0.002, 0]}]}')
+    wa.add_argument("--landmarks", help="landmark JSON for the base instead of detection")
+    wa.add_argument("-o", "--output", required=True, type=_output_path([".obj", ".ply", ".glb", ".png"]))
+    wa.add_argument("--size", type=int, default=512)
+    wa.set_defaults(func=_cmd_wires_apply)
+    wb = wsub.add_parser("blend", help="blend two templates through their wires, feature by feature")
+    wb.add_argument("--base", required=True)
+    wb.add_argument("--from", dest="source", required=True, help="template at t = 0")
+    wb.add_argument("--to", required=True, help="template at t = 1")
+    wb.add_argument("--eyes", default="linear", help="blending function of the eye wires (linear, sqrt, cubic, ...)")
+    wb.add_argument("--mouth", default="linear", help="blending function of the mouth wires")
+    wb.add_argument("--group", action="append", metavar="NAME=FUNCTION",
+                    help="blending function of another wire group (brows, cheeks, nose), or samples 0,0.2,1")
+    wb.add_argument("--frames", type=int, default=60)
+    wb.add_argument("--fps", type=float, default=30.0)
+    wb.add_argument("--landmarks", help="landmark JSON for the base instead of detection")
+    wb.add_argument("-o", "--output", required=True, type=_output_path([".glb", ".mp4"]))
+    wb.add_argument("--size", type=int, default=512)
+    wb.set_defaults(func=_cmd_wires_blend)
     return p
 
 

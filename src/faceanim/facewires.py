@@ -57,18 +57,29 @@ def fit_curve(points: np.ndarray, n_control: int) -> Curve:
 
 @dataclass
 class WireSet:
-    """Named wires on a base face with their groups and the localizing exponent k."""
+    """Named wires on a base face with their groups, the localizing exponent k, and for wires
+    along a slit (lips, lids) the side they keep to: ``sides[j] = (slit, 'upper' | 'lower')``."""
 
     wires: list[Wire]
     groups: list[str]
     k: float = 2.0
+    sides: list = field(default_factory=list)
 
     @property
     def names(self) -> list[str]:
         return [w.name for w in self.wires]
 
-    def bind(self, vertices) -> BoundWires:
-        return bind_wires(vertices, self.wires, self.k)
+    def bind(self, mesh, lm478=None) -> BoundWires:
+        """Bind to a base face. Wires with a side keep to it when the face's landmarks are given
+        (the paper's wires are not limited: without landmarks they reach across the slit)."""
+        v = mesh.vertices if isinstance(mesh, Mesh) else np.asarray(mesh)
+        masks = None
+        if lm478 is not None and isinstance(mesh, Mesh) and any(self.sides):
+            from .facs import default_library, slit_sides
+
+            lower = slit_sides(mesh, lm478, default_library())
+            masks = [None if not side else (lower[side[0]] == (side[1] == "lower")) for side in self.sides]
+        return bind_wires(v, self.wires, self.k, masks)
 
 
 def default_wires(lm478: np.ndarray, spec: dict | None = None) -> WireSet:
@@ -76,12 +87,13 @@ def default_wires(lm478: np.ndarray, spec: dict | None = None) -> WireSet:
     spec = spec or default_wire_spec()
     lm = np.asarray(lm478, dtype=np.float64)
     iod = face_frame(lm).iod
-    wires, groups = [], []
+    wires, groups, sides = [], [], []
     for d in spec["wires"]:
         curve = fit_curve(lm[d["through"]], int(d["controls"]))
         wires.append(Wire(curve, np.asarray(d["range"], dtype=np.float64) * iod, d["name"]))
         groups.append(d.get("group", "other"))
-    return WireSet(wires, groups, float(spec.get("k", 2.0)))
+        sides.append(tuple(d["side"]) if d.get("side") else None)
+    return WireSet(wires, groups, float(spec.get("k", 2.0)), sides)
 
 
 @dataclass
@@ -95,13 +107,22 @@ class WireTemplate:
     n_vertices: int
     meta: dict = field(default_factory=dict)
 
+    @property
+    def n_numbers(self) -> int:
+        """What the template costs once the base face's reference curves are known: the wire
+        control points and the scales."""
+        return sum(c.size for c in self.controls) + len(self.scales)
+
     def to_dict(self) -> dict:
         return {
             "format": "faceanim wires 1", "n_vertices": int(self.n_vertices), "k": self.wireset.k,
             "meta": self.meta,
-            "wires": [{"name": w.name, "group": g, "reference": w.reference.control.round(9).tolist(),
+            "wires": [{"name": w.name, "group": g, "side": list(side) if side else None,
+                       "reference": w.reference.control.round(9).tolist(),
                        "range": w.range.round(9).tolist(), "wire": c.round(9).tolist(), "scale": float(s)}
-                      for w, g, c, s in zip(self.wireset.wires, self.wireset.groups, self.controls, self.scales)],
+                      for w, g, side, c, s in zip(self.wireset.wires, self.wireset.groups,
+                                                  self.wireset.sides or [None] * len(self.controls),
+                                                  self.controls, self.scales)],
         }
 
     def save(self, path) -> None:
@@ -110,17 +131,18 @@ class WireTemplate:
     @classmethod
     def from_dict(cls, d, source: str = "wire file") -> WireTemplate:
         try:
-            wires, groups, controls, scales = [], [], [], []
+            wires, groups, controls, scales, sides = [], [], [], [], []
             for w in d["wires"]:
                 wires.append(Wire(Curve(np.asarray(w["reference"], dtype=np.float64)), w["range"], str(w["name"])))
                 groups.append(str(w.get("group", "other")))
+                sides.append(tuple(w["side"]) if w.get("side") else None)
                 c = np.asarray(w["wire"], dtype=np.float64)
                 if c.shape != wires[-1].reference.control.shape:
                     raise DeformError(f"wire '{w['name']}' has {len(c)} wire control points for "
                                       f"{wires[-1].reference.n_control} reference ones")
                 controls.append(c)
                 scales.append(float(w.get("scale", 1.0)))
-            return cls(WireSet(wires, groups, float(d.get("k", 2.0))), controls, np.array(scales),
+            return cls(WireSet(wires, groups, float(d.get("k", 2.0)), sides), controls, np.array(scales),
                        int(d["n_vertices"]), dict(d.get("meta", {})))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputFileError(f"{source}: not a faceanim wire template ({exc!r})") from None
@@ -129,25 +151,44 @@ class WireTemplate:
     def load(cls, path) -> WireTemplate:
         return cls.from_dict(read_json(path, "wire file"), str(path))
 
-    def rebuild(self, base: Mesh | np.ndarray, bound: BoundWires | None = None) -> np.ndarray:
+    def rebuild(self, base: Mesh | np.ndarray, bound: BoundWires | None = None, lm478=None) -> np.ndarray:
         """The template's vertices on ``base``: the wires applied to the base face."""
         v = base.vertices if isinstance(base, Mesh) else np.asarray(base)
         if len(v) != self.n_vertices:
             raise DeformError(f"this template was extracted on a base face with {self.n_vertices} vertices; "
                               f"this mesh has {len(v)}")
-        bound = bound or self.wireset.bind(v)
+        bound = bound or self.wireset.bind(base, lm478)
         return bound.apply(self.controls, self.scales)
 
 
-def extract_template(base: Mesh, template: Mesh, wireset: WireSet, bound: BoundWires | None = None) -> WireTemplate:
+def extract_template(base: Mesh, template: Mesh, wireset: WireSet, bound: BoundWires | None = None,
+                     lm478=None) -> WireTemplate:
     """Fit the wires of ``wireset`` to an expression template of the same topology (eqs. 9-13)."""
     if template.n_vertices != base.n_vertices or not np.array_equal(template.faces, base.faces):
         raise DeformError(f"'{template.name}' has another topology than the base '{base.name}' "
                           f"({template.n_vertices} vs {base.n_vertices} vertices); wire extraction needs "
                           "the same vertices in the same order")
-    bound = bound or wireset.bind(base.vertices)
+    bound = bound or wireset.bind(base, lm478)
     controls, scales = extract_wires(bound, template.vertices)
     return WireTemplate(wireset, controls, scales, base.n_vertices, {"template": template.name})
+
+
+def align_template(base: Mesh, template: Mesh, lm478: np.ndarray) -> Mesh:
+    """``template`` rigidly aligned to ``base`` on the skull (scans differ in head pose); a face
+    mask without a skull is aligned on bony landmarks."""
+    from .facs import STABLE_LANDMARKS
+    from .transfer import points_on_landmarks, rigid_align, skull_vertices
+
+    if template.n_vertices != base.n_vertices:
+        raise DeformError(f"'{template.name}' has {template.n_vertices} vertices, the base '{base.name}' "
+                          f"{base.n_vertices}; wire extraction needs the same topology")
+    stable = skull_vertices(base, lm478, face_frame(lm478))
+    if len(stable):
+        r, t = rigid_align(template.vertices[stable], base.vertices[stable])
+    else:
+        idx = list(STABLE_LANDMARKS)
+        r, t = rigid_align(points_on_landmarks(template, base, lm478)[idx], np.asarray(lm478)[idx])
+    return template.with_vertices(template.vertices @ r.T + t)
 
 
 def blend(a: WireTemplate, b: WireTemplate, t: float, group_functions: dict[str, str] | None = None) -> WireTemplate:
@@ -178,3 +219,84 @@ def blending_function(name: str):
         raise DeformError(f"a blending curve needs at least two finite samples, got '{name}'")
     xs = np.linspace(0.0, 1.0, len(ys))
     return lambda t: np.interp(t, xs, ys)
+
+
+GROUP_COLOURS = {"brows": (255, 170, 0), "eyes": (0, 200, 255), "mouth": (255, 60, 60), "cheeks": (120, 255, 120),
+                 "nose": (255, 255, 0), "other": (255, 255, 255)}
+
+
+def render_wires(mesh: Mesh, wireset: WireSet, vertices=None, controls=None, size: int = 768) -> np.ndarray:
+    """A frontal picture of the face with its wire curves drawn over it (colour by group) and
+    their control points as dots; ``controls`` draws wire curves instead of the references."""
+    import cv2
+
+    from .render import OffscreenRenderer
+
+    with OffscreenRenderer(mesh, size=(size, size), parallel=True) as r:
+        img = np.ascontiguousarray(r.render(vertices))
+        for j, (w, g) in enumerate(zip(wireset.wires, wireset.groups)):
+            curve = w.reference if controls is None else Curve(controls[j])
+            pts = (r.project(curve(np.linspace(0, 1, 120))) * size).astype(np.int32)
+            colour = GROUP_COLOURS.get(g, GROUP_COLOURS["other"])
+            cv2.polylines(img, [pts.reshape(-1, 1, 2)], False, colour, 2, cv2.LINE_AA)
+            for x, y in (r.project(curve.control) * size).astype(int):
+                cv2.circle(img, (int(x), int(y)), 4, colour, -1, cv2.LINE_AA)
+    return img
+
+
+def blend_blendshapes(a: WireTemplate, b: WireTemplate, bound: BoundWires) -> dict[str, np.ndarray]:
+    """The blend from ``a`` to ``b`` as blendshapes: ``from`` (template a) plus one per feature
+    group (its wires' share of b - a). Wire deformation is linear in the wires once the reference
+    curves are fixed, so ``from + sum_g g_g(t) * group_g`` is exactly the blended template at t."""
+    if a.wireset.names != b.wireset.names:
+        raise DeformError("the two templates were extracted with different wires")
+    op = bound.deformer()
+    shapes = {"from": op.displacements(bound.offsets(a.controls, a.scales))}
+    delta_controls = [cb - ca + w.reference.control for ca, cb, w in zip(a.controls, b.controls, a.wireset.wires)]
+    for group in dict.fromkeys(a.wireset.groups):
+        sel = [j for j, g in enumerate(a.wireset.groups) if g == group]
+        controls = [delta_controls[j] if j in sel else w.reference.control for j, w in enumerate(a.wireset.wires)]
+        scales = np.array([1.0 + (b.scales[j] - a.scales[j]) if j in sel else 1.0 for j in range(len(a.scales))])
+        shapes[group] = op.displacements(bound.offsets(controls, scales))
+    return shapes
+
+
+def parse_edits(spec, wireset: WireSet) -> tuple[dict[int, list[tuple[int, np.ndarray]]], dict[int, float]]:
+    """Edits from JSON: ``{"edits": [{"wire": "upper_lip", "control": 3, "offset": [dx, dy, dz]},
+    {"wire": "brow_L", "scale": 1.2}]}`` -> moves per wire index, scales per wire index."""
+    if not isinstance(spec, dict) or not isinstance(spec.get("edits"), list):
+        raise InputFileError('an edit file holds {"edits": [{"wire": name, "control": i, "offset": [dx, dy, dz]}, ...]}')
+    moves: dict[int, list] = {}
+    scales: dict[int, float] = {}
+    for n, e in enumerate(spec["edits"]):
+        if not isinstance(e, dict) or e.get("wire") not in wireset.names:
+            raise InputFileError(f"edit {n}: unknown wire {e.get('wire') if isinstance(e, dict) else e!r}; "
+                                 f"the wires are {', '.join(wireset.names)}")
+        j = wireset.names.index(e["wire"])
+        if "scale" in e:
+            s = float(e["scale"])
+            if not np.isfinite(s):
+                raise InputFileError(f"edit {n}: the scale must be a finite number")
+            scales[j] = s
+        if "control" in e:
+            i = int(e["control"])
+            if not 0 <= i < wireset.wires[j].reference.n_control:
+                raise InputFileError(f"edit {n}: wire '{e['wire']}' has control points 0.."
+                                     f"{wireset.wires[j].reference.n_control - 1}, not {i}")
+            off = np.asarray(e.get("offset"), dtype=np.float64)
+            if off.shape != (3,) or not np.all(np.isfinite(off)):
+                raise InputFileError(f"edit {n}: 'offset' must be [dx, dy, dz]")
+            moves.setdefault(j, []).append((i, off))
+    return moves, scales
+
+
+def edit_template(t: WireTemplate, moves, scales) -> WireTemplate:
+    """A copy of ``t`` with wire control points moved and scales set (local editing)."""
+    controls = [c.copy() for c in t.controls]
+    s = t.scales.copy()
+    for j, items in moves.items():
+        for i, off in items:
+            controls[j][i] += off
+    for j, value in scales.items():
+        s[j] = value
+    return WireTemplate(t.wireset, controls, s, t.n_vertices, dict(t.meta, edited=True))

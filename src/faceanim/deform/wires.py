@@ -189,8 +189,13 @@ class BoundWires:
         return self.rest + d
 
 
-def bind_wires(rest, wires: list[Wire], k: float = 1.0) -> BoundWires:
-    """Closest points on every reference curve, falloffs and the eq. 3 blending weights."""
+def bind_wires(rest, wires: list[Wire], k: float = 1.0, masks=None) -> BoundWires:
+    """Closest points on every reference curve, falloffs and the eq. 3 blending weights.
+
+    ``masks`` (one boolean (V,) array or None per wire) limits a wire to some vertices, e.g. the
+    upper-lip wire to the upper side of the mouth: the paper's falloff measures distance through
+    the air, so without it a lip wire also drags the other lip a few millimetres away.
+    """
     rest = check_points(rest, "mesh vertices")
     if not wires:
         raise DeformError("give at least one wire")
@@ -204,7 +209,10 @@ def bind_wires(rest, wires: list[Wire], k: float = 1.0) -> BoundWires:
         # only vertices that can be in range matter: a ball around the curve's bounding box
         reach = w.range.max()
         lo, hi = w.reference.control.min(0) - reach, w.reference.control.max(0) + reach
-        near = np.flatnonzero(np.all((rest >= lo) & (rest <= hi), axis=1))
+        inside = np.all((rest >= lo) & (rest <= hi), axis=1)
+        if masks is not None and masks[j] is not None:
+            inside &= np.asarray(masks[j], dtype=bool)
+        near = np.flatnonzero(inside)
         b = np.zeros((len(rest), w.reference.n_control))
         if len(near):
             u, pr = w.reference.closest(rest[near])
