@@ -77,8 +77,23 @@ class WireSet:
         if lm478 is not None and isinstance(mesh, Mesh) and any(self.sides):
             from .facs import default_library, slit_sides
 
-            lower = slit_sides(mesh, lm478, default_library())
-            masks = [None if not side else (lower[side[0]] == (side[1] == "lower")) for side in self.sides]
+            library = default_library()
+            lower = slit_sides(mesh, lm478, library)
+            frame = face_frame(lm478)
+            x = frame.to_local(v)[:, 0]
+            masks = []
+            for side in self.sides:
+                if not side:
+                    masks.append(None)
+                    continue
+                # the side matters between the slit's corners; beyond them both wires act, faded
+                # in over a fifth of the slit's width, so the skin past the corners has no seam
+                ca, cb = frame.to_local(np.asarray(lm478)[list(library.slits[side[0]]["corners"])])[:, 0]
+                centre, half = (ca + cb) / 2, abs(cb - ca) / 2
+                t = np.clip((np.abs(x - centre) - half) / (0.4 * half), 0.0, 1.0)
+                beyond = t * t * (3 - 2 * t)
+                own = lower[side[0]] == (side[1] == "lower")
+                masks.append(np.where(own, 1.0, beyond))
         return bind_wires(v, self.wires, self.k, masks)
 
 

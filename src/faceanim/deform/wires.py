@@ -192,9 +192,10 @@ class BoundWires:
 def bind_wires(rest, wires: list[Wire], k: float = 1.0, masks=None) -> BoundWires:
     """Closest points on every reference curve, falloffs and the eq. 3 blending weights.
 
-    ``masks`` (one boolean (V,) array or None per wire) limits a wire to some vertices, e.g. the
-    upper-lip wire to the upper side of the mouth: the paper's falloff measures distance through
-    the air, so without it a lip wire also drags the other lip a few millimetres away.
+    ``masks`` (one (V,) array of factors in [0, 1] or None per wire) scales a wire's falloff per
+    vertex, e.g. keeps the upper-lip wire to the upper side of the mouth: the paper's falloff
+    measures distance through the air, so without it a lip wire also drags the other lip a few
+    millimetres away.
     """
     rest = check_points(rest, "mesh vertices")
     if not wires:
@@ -210,14 +211,16 @@ def bind_wires(rest, wires: list[Wire], k: float = 1.0, masks=None) -> BoundWire
         reach = w.range.max()
         lo, hi = w.reference.control.min(0) - reach, w.reference.control.max(0) + reach
         inside = np.all((rest >= lo) & (rest <= hi), axis=1)
+        factor = None
         if masks is not None and masks[j] is not None:
-            inside &= np.asarray(masks[j], dtype=bool)
+            factor = np.clip(np.asarray(masks[j], dtype=np.float64), 0.0, 1.0)
+            inside &= factor > 0
         near = np.flatnonzero(inside)
         b = np.zeros((len(rest), w.reference.n_control))
         if len(near):
             u, pr = w.reference.closest(rest[near])
             x = np.linalg.norm(rest[near] - pr, axis=1) / w.range_at(u)
-            f[near, j] = falloff(x)
+            f[near, j] = falloff(x) * (1.0 if factor is None else factor[near])
             radial[j, near] = rest[near] - pr
             b[near] = w.reference.basis(u)
         basis.append(b)
