@@ -189,6 +189,9 @@ class BoundWires:
         return self.rest + d
 
 
+WEIGHT_CUTOFF = 1e-4  # blending weights below this are dropped: a share of the motion under 0.01%
+
+
 def bind_wires(rest, wires: list[Wire], k: float = 1.0, masks=None) -> BoundWires:
     """Closest points on every reference curve, falloffs and the eq. 3 blending weights.
 
@@ -227,6 +230,7 @@ def bind_wires(rest, wires: list[Wire], k: float = 1.0, masks=None) -> BoundWire
     fk = f ** k
     total = fk.sum(1, keepdims=True)
     weights = np.divide(fk * f, total, out=np.zeros_like(f), where=total > 0)
+    weights[weights < WEIGHT_CUTOFF] = 0.0
     return BoundWires(list(wires), float(k), rest, weights, radial, basis)
 
 
