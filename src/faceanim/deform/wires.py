@@ -82,21 +82,26 @@ class Curve:
         n = (self.n_control - DEGREE) * _SAMPLES_PER_SPAN + 1
         us = np.linspace(0.0, 1.0, n)
         samples = self(us)
-        _, i = cKDTree(samples).query(p)
-        # refine on the segments either side of the nearest sample by projecting onto the chord,
-        # then a few Newton steps on |C(u) - p|^2
-        u = us[i]
+        # start from the few nearest samples (a curve that comes back near itself has several
+        # local minima), refine each by Newton steps on |C(u) - p|^2, keep the closest
+        starts = 3
+        _, idx = cKDTree(samples).query(p, k=starts)
         h = 1.0 / (n - 1)
-        deriv = BSpline(self.knots, self.control, DEGREE).derivative()
-        deriv2 = deriv.derivative()
         curve = BSpline(self.knots, self.control, DEGREE)
-        for _ in range(4):
+        deriv = curve.derivative()
+        deriv2 = deriv.derivative()
+        pp = np.repeat(p, starts, axis=0)
+        u = us[idx.ravel()]
+        for _ in range(5):
             c, d1, d2 = curve(u), deriv(u), deriv2(u)
-            diff = c - p
+            diff = c - pp
             g = (diff * d1).sum(1)
             hess = (d1 * d1).sum(1) + (diff * d2).sum(1)
             step = np.where(hess > 1e-300, g / np.where(hess > 1e-300, hess, 1.0), 0.0)
             u = np.clip(u - np.clip(step, -h, h), 0.0, 1.0)
+        dist = np.linalg.norm(curve(u) - pp, axis=1).reshape(-1, starts)
+        best = dist.argmin(1)
+        u = u.reshape(-1, starts)[np.arange(len(p)), best]
         return u, curve(u)
 
 
