@@ -169,6 +169,12 @@ def test_cli_extract_apply_blend(tmp_path, base_face, face_wires, rng, capsys):
     assert main(["wires", "blend", "--base", str(base), "--from", str(files[0]), "--to", str(files[1]),
                  "--landmarks", str(lmf), "--eyes", "sqrt", "--mouth", "cubic", "--frames", "5",
                  "-o", str(tmp_path / "b.glb")]) == 0
+    import pygltflib
+
+    assert main(["wires", "blend", "--base", str(base), "--from", str(files[0]), "--to", str(files[1]),
+                 "--to", str(files[0]), "--landmarks", str(lmf), "--frames", "4", "-o", str(tmp_path / "c.glb")]) == 0
+    names = pygltflib.GLTF2().load(str(tmp_path / "c.glb")).meshes[0].extras["targetNames"]
+    assert names[0] == "from" and "mouth@1" in names and "mouth@2" in names
     # bad input: unknown wire in an edit, another topology, a broken wire file
     edit.write_text(json.dumps({"edits": [{"wire": "tail", "scale": 2}]}))
     assert main(["wires", "apply", "--base", str(base), "--wires", str(files[0]), "--landmarks", str(lmf),

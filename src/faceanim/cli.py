@@ -255,8 +255,9 @@ def _cmd_wires_blend(args) -> None:
     from .render import OffscreenRenderer, write_video
 
     base, lm, _ = _wire_base(args)
-    a, b = WireTemplate.load(args.source), WireTemplate.load(args.to)
-    for t, name in ((a, args.source), (b, args.to)):
+    paths = [args.source] + list(args.to)
+    templates = [WireTemplate.load(p) for p in paths]
+    for t, name in zip(templates, paths):
         if t.n_vertices != base.n_vertices:
             raise FaceAnimError(f"'{name}' was extracted on a base with {t.n_vertices} vertices, "
                                 f"'{args.base}' has {base.n_vertices}")
@@ -268,30 +269,42 @@ def _cmd_wires_blend(args) -> None:
             raise FaceAnimError(f"--group takes NAME=FUNCTION, got '{item}'")
         k, v = item.split("=", 1)
         functions[k] = v
-    shapes = blend_blendshapes(a, b, a.wireset.bind(base, lm))
-    unknown = set(functions) - set(shapes)
-    if unknown - {"eyes", "mouth"}:
-        raise FaceAnimError(f"no wire group {', '.join(sorted(unknown))}; the groups are "
-                            f"{', '.join(n for n in shapes if n != 'from')}")
-    names = list(shapes)
-    ts = np.linspace(0.0, 1.0, args.frames)
-    weights = np.zeros((len(ts), len(names)))
-    weights[:, 0] = 1.0
-    for c, name in enumerate(names[1:], start=1):
-        weights[:, c] = blending_function(functions.get(name, "linear"))(ts)
+    groups = set(templates[0].wireset.groups)
+    if set(functions) - groups - {"eyes", "mouth"}:
+        raise FaceAnimError(f"no wire group {', '.join(sorted(set(functions) - groups))}; the groups are "
+                            f"{', '.join(sorted(groups))}")
+    curves = {g: blending_function(f) for g, f in functions.items()}
+    bound = templates[0].wireset.bind(base, lm)
+    # a chain a -> b -> c ...: segment i adds its per-group share of (next - this), weighted by the
+    # group's blending function over the segment and held at its end value after it
+    shapes, columns = {}, []
+    for i, (a, b) in enumerate(zip(templates[:-1], templates[1:])):
+        seg = blend_blendshapes(a, b, bound)
+        if i == 0:
+            shapes["from"] = seg["from"]
+            columns.append(("from", None, None))
+        for g, d in seg.items():
+            if g != "from":
+                name = g if len(templates) == 2 else f"{g}@{i + 1}"
+                shapes[name] = d
+                columns.append((name, i, curves.get(g, blending_function("linear"))))
+    n_seg = len(templates) - 1
+    ts = np.linspace(0.0, float(n_seg), args.frames * n_seg)
+    weights = np.zeros((len(ts), len(columns)))
+    for c, (_, seg_i, curve) in enumerate(columns):
+        weights[:, c] = 1.0 if seg_i is None else curve(np.clip(ts - seg_i, 0.0, 1.0))
     times = np.arange(len(ts)) / args.fps
     if Path(args.output).suffix.lower() == ".glb":
         write_gltf(args.output, base, shapes, times=times, weights=weights, animation_name="blend")
     else:
+        from .facs import FACE_OVAL
         from .rig import Rig
 
         frames = Rig(base, shapes).evaluate(weights)
-        from .facs import FACE_OVAL
-
         with OffscreenRenderer(base, size=(args.size, args.size), yaw=12, pitch=3,
                                frame_vertices=np.asarray(lm)[list(FACE_OVAL)], margin=1.25) as r:
             write_video(args.output, (r.render(v) for v in frames), fps=args.fps)
-    print(f"wrote {args.output} ({args.frames} frames)")
+    print(f"wrote {args.output} ({len(ts)} frames, {n_seg} blend{'s' if n_seg > 1 else ''})")
 
 
 def _output_path(suffixes):
@@ -403,12 +416,13 @@ def build_parser() -> argparse.ArgumentParser:
     wb = wsub.add_parser("blend", help="blend two templates through their wires, feature by feature")
     wb.add_argument("--base", required=True)
     wb.add_argument("--from", dest="source", required=True, help="template at t = 0")
-    wb.add_argument("--to", required=True, help="template at t = 1")
+    wb.add_argument("--to", required=True, action="append",
+                    help="template at t = 1; repeat to blend on through more templates (a -> b -> c)")
     wb.add_argument("--eyes", default="linear", help="blending function of the eye wires (linear, sqrt, cubic, ...)")
     wb.add_argument("--mouth", default="linear", help="blending function of the mouth wires")
     wb.add_argument("--group", action="append", metavar="NAME=FUNCTION",
                     help="blending function of another wire group (brows, cheeks, nose), or samples 0,0.2,1")
-    wb.add_argument("--frames", type=int, default=60)
+    wb.add_argument("--frames", type=int, default=60, help="frames per blend")
     wb.add_argument("--fps", type=float, default=30.0)
     wb.add_argument("--landmarks", help="landmark JSON for the base instead of detection")
     wb.add_argument("-o", "--output", required=True, type=_output_path([".glb", ".mp4"]))

@@ -240,14 +240,17 @@ GROUP_COLOURS = {"brows": (255, 170, 0), "eyes": (0, 200, 255), "mouth": (255, 6
                  "nose": (255, 255, 0), "other": (255, 255, 255)}
 
 
-def render_wires(mesh: Mesh, wireset: WireSet, vertices=None, controls=None, size: int = 768) -> np.ndarray:
+def render_wires(mesh: Mesh, wireset: WireSet, vertices=None, controls=None, size: int = 768,
+                 frame_vertices=None) -> np.ndarray:
     """A frontal picture of the face with its wire curves drawn over it (colour by group) and
-    their control points as dots; ``controls`` draws wire curves instead of the references."""
+    their control points as dots; ``controls`` draws wire curves instead of the references;
+    ``frame_vertices`` sets the framing (e.g. the face of a full head)."""
     import cv2
 
     from .render import OffscreenRenderer
 
-    with OffscreenRenderer(mesh, size=(size, size), parallel=True) as r:
+    with OffscreenRenderer(mesh, size=(size, size), parallel=True, frame_vertices=frame_vertices,
+                           margin=1.15) as r:
         img = np.ascontiguousarray(r.render(vertices))
         for j, (w, g) in enumerate(zip(wireset.wires, wireset.groups)):
             curve = w.reference if controls is None else Curve(controls[j])
