@@ -14,7 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.default_face import default_face, default_landmarks
-from faceanim.facewires import align_template, blend, default_wires, extract_template, render_wires
+from faceanim.facewires import (
+    align_template,
+    blend,
+    default_wires,
+    extract_template,
+    render_wires,
+)
 from faceanim.facs import FACE_OVAL, landmarks_478
 from faceanim.render import save_png
 

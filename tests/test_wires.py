@@ -4,15 +4,30 @@ import json
 
 import numpy as np
 import pytest
+from conftest import FACEWAREHOUSE, need
 from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
-from conftest import FACEWAREHOUSE, need
 from faceanim.cli import main
-from faceanim.deform.wires import Curve, Wire, bind_wires, clamped_knots, extract_wires, falloff
+from faceanim.deform.wires import (
+    Curve,
+    Wire,
+    bind_wires,
+    clamped_knots,
+    extract_wires,
+    falloff,
+)
 from faceanim.errors import DeformError, FaceAnimError
-from faceanim.facewires import (WireTemplate, blend, blend_blendshapes, blending_function, default_wires,
-                                edit_template, extract_template, render_wires)
+from faceanim.facewires import (
+    WireTemplate,
+    blend,
+    blend_blendshapes,
+    blending_function,
+    default_wires,
+    edit_template,
+    extract_template,
+    render_wires,
+)
 from faceanim.facs import landmarks_478
 from faceanim.mesh import save_mesh
 
@@ -128,7 +143,7 @@ def test_blending_functions_and_blendshapes_are_exact(base_face, face_wires, rng
 
 
 def test_bad_wires_and_templates(base_face, face_wires, rng):
-    lm, ws = face_wires
+    _, ws = face_wires
     with pytest.raises(DeformError, match="at least 4"):
         Curve(rng.normal(size=(3, 3)))
     pts = rng.normal(size=(5, 3))

@@ -6,6 +6,7 @@ Every user error becomes one line on stderr and exit code 2; no partial output i
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 from pathlib import Path
 
@@ -215,11 +216,9 @@ def _wire_base(args):
 
 
 def _cmd_wires_extract(args) -> None:
-    from .facewires import extract_template
-    from .mesh import load_mesh
-
+    from .facewires import align_template, extract_template
     from .facs import face_region
-    from .facewires import align_template
+    from .mesh import load_mesh
 
     base, lm, wireset = _wire_base(args)
     template = load_mesh(args.template)
@@ -278,7 +277,7 @@ def _cmd_wires_blend(args) -> None:
     # a chain a -> b -> c ...: segment i adds its per-group share of (next - this), weighted by the
     # group's blending function over the segment and held at its end value after it
     shapes, columns = {}, []
-    for i, (a, b) in enumerate(zip(templates[:-1], templates[1:])):
+    for i, (a, b) in enumerate(itertools.pairwise(templates)):
         seg = blend_blendshapes(a, b, bound)
         if i == 0:
             shapes["from"] = seg["from"]

@@ -18,7 +18,14 @@ from importlib import resources
 
 import numpy as np
 
-from .deform.wires import BoundWires, Curve, Wire, bind_wires, clamped_knots, extract_wires
+from .deform.wires import (
+    BoundWires,
+    Curve,
+    Wire,
+    bind_wires,
+    clamped_knots,
+    extract_wires,
+)
 from .errors import DeformError, InputFileError
 from .facs import face_frame
 from .fileio import read_json, write_json
