@@ -1,0 +1,107 @@
+"""MPEG-4 basics: the FAP table, FAP streams, .fap files, feature points and FAPU."""
+
+import numpy as np
+import pytest
+
+from faceanim.errors import InputFileError, LandmarkError
+from faceanim.facs import face_frame, landmarks_478
+from faceanim.mpeg4 import (
+    FapError,
+    FapStream,
+    fap,
+    faps,
+    feature_points,
+    parse_fap,
+    read_fap,
+    write_fap,
+)
+from faceanim.mpeg4.faps import direction_vector
+
+
+def test_fap_table():
+    table = faps()
+    assert len(table) == 68 and [f.number for f in table] == list(range(1, 69))
+    assert len({f.name for f in table}) == 68
+    assert fap(3).name == "open_jaw" and fap(3).unit == "MNS" and fap(3).feature_points == ("2.1",)
+    assert fap("head_yaw").is_rotation and fap("head_yaw").number == 49
+    np.testing.assert_array_equal(direction_vector(fap("stretch_l_cornerlip")), [1, 0, 0])  # the face's left
+    np.testing.assert_array_equal(direction_vector(fap("open_jaw")), [0, -1, 0])
+    assert sum(f.is_rotation for f in table) == 8  # eyeball yaw and pitch, tongue roll, head pitch/yaw/roll
+    for bad in (0, 69, "nose_flare", "x1"):
+        with pytest.raises(FapError):
+            fap(bad)
+
+
+def _random_stream(rng, frames=12):
+    s = FapStream.empty(frames, fps=30, name="C:\\Documents and Settings\\me\\talk.fap")
+    s.mask[:] = rng.random((frames, 68)) < 0.3
+    s.values[:, 2:] = np.where(s.mask[:, 2:], rng.integers(-500, 500, (frames, 66)), 0)
+    s.values[3, 10] = 12.5
+    s.mask[3, 10] = True
+    s.mask[:, 0] = True
+    s.viseme[:] = rng.integers(0, 15, (frames, 4))
+    s.expression[:] = rng.integers(0, 7, (frames, 6))
+    s.frame_numbers[:] = np.arange(frames) + 100
+    return s
+
+
+def test_fap_round_trip_is_exact(tmp_path, rng):
+    s = _random_stream(rng)
+    path = write_fap(tmp_path / "a.fap", s)
+    back = read_fap(path)
+    assert back.name == s.name and back.fps == s.fps and back.n_frames == s.n_frames
+    np.testing.assert_array_equal(back.mask, s.mask)
+    np.testing.assert_array_equal(back.values, s.values)
+    np.testing.assert_array_equal(back.viseme, s.viseme)
+    np.testing.assert_array_equal(back.frame_numbers, s.frame_numbers)
+    np.testing.assert_array_equal(back.expression[:, :], np.where(s.mask[:, 1:2], s.expression, 0))
+
+
+def test_real_world_quirks():
+    mask = ["0"] * 68
+    mask[2] = "1"   # open_jaw
+    mask[47] = "1"  # head_pitch
+    text = ("# made by hand\r\n\r\n2.1   D:\\fap files\\hello world.fap   25   2   \r\n"
+            + " ".join(mask) + "  \r\n0 120 -300 \r\n# a comment between frames\n"
+            + " ".join(["0"] * 68) + "\n1\n")
+    s = parse_fap(text, "x.fap")
+    assert s.name == "D:\\fap files\\hello world.fap" and s.fps == 25 and s.n_frames == 2
+    assert s.column("open_jaw")[0] == 120 and s.column(48)[0] == -300 and not s.mask[1].any()
+
+
+@pytest.mark.parametrize("text, message", [
+    ("", "no header"),
+    ("2.1 x 25\n", "header needs"),
+    ("2.1 x 25 2\n" + "0 " * 68 + "\n0\n", "promises 2 frames but the file has 1"),
+    ("2.1 x 25 1\n" + "0 " * 67 + "\n0\n", ":2: a mask line needs 68 bits"),
+    ("2.1 x 25 1\n1 " + "0 " * 67 + "\n0\n", ":3: the mask on line 2 sets 1 FAPs, so this line needs 5 numbers"),
+    ("2.1 x 25 1\n0 0 1 " + "0 " * 65 + "\n0 abc\n", ":3: value 'abc' is not a number"),
+    ("2.1 x -5 0\n", "frame rate must be positive"),
+    ("2.1 x 25 1\n" + "2 " * 68 + "\n0\n", "mask bits must be 0 or 1"),
+])
+def test_malformed_files_name_the_line(text, message):
+    with pytest.raises(InputFileError, match=message.replace("(", r"\(")):
+        parse_fap(text, "bad.fap")
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputFileError, match="does not exist"):
+        read_fap(tmp_path / "nope.fap")
+
+
+def test_feature_points_and_fapu(face, face_landmarks):
+    lm = landmarks_478(face, face_landmarks)
+    fp = feature_points(face, lm)
+    frame = face_frame(lm)
+    # oracles straight from the landmarks: pupils (irises) and outer lip corners
+    es = abs(frame.to_local(lm[473])[0] - frame.to_local(lm[468])[0])
+    assert fp.fapu["ES"] == pytest.approx(es, rel=1e-9)
+    mw = abs(frame.to_local(lm[291])[0] - frame.to_local(lm[61])[0])
+    assert fp.fapu["MW"] == pytest.approx(mw, rel=0.05)
+    assert fp.unit("ES0") == pytest.approx(fp.fapu["ES"] / 1024) and fp.unit("AU") == 1e-5
+    # the face's left is +x: left mouth corner 8.3 to the left of the right one 8.4
+    assert frame.to_local(fp["8.3"])[0] > frame.to_local(fp["8.4"])[0]
+    assert frame.to_local(fp["2.1"])[1] < frame.to_local(fp["9.15"])[1] < frame.to_local(fp["3.5"])[1]
+    assert "6.1" in fp.missing and "10.1" in fp.missing
+    with pytest.raises(LandmarkError, match="tongue"):
+        fp["6.1"]
