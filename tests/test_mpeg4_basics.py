@@ -105,3 +105,52 @@ def test_feature_points_and_fapu(face, face_landmarks):
     assert "6.1" in fp.missing and "10.1" in fp.missing
     with pytest.raises(LandmarkError, match="tongue"):
         fp["6.1"]
+
+
+@pytest.fixture(scope="module")
+def fap_rig(face, face_landmarks):
+    from faceanim.mpeg4.deformation import FapRig
+
+    return FapRig.build(face, landmarks_478(face, face_landmarks))
+
+
+def test_linear_faps_move_their_feature_point_by_the_fapu(fap_rig, face):
+    fp = fap_rig.points
+    s = FapStream.empty(3)
+    s.set("raise_l_cornerlip", 200, frames=[1])
+    s.set("stretch_r_cornerlip", -150, frames=[2])
+    v = fap_rig.evaluate(s)
+    np.testing.assert_array_equal(v[0], face.vertices)  # an empty frame is the neutral face
+    _, i = face.kdtree.query(fp["2.4"])
+    moved = fp.frame.vectors_to_local(v[1][i] - face.vertices[i])
+    np.testing.assert_allclose(moved, [0, 200 * fp.unit("MNS"), 0], atol=1e-12)
+    _, j = face.kdtree.query(fp["2.5"])
+    moved = fp.frame.vectors_to_local(v[2][j] - face.vertices[j])
+    np.testing.assert_allclose(moved, [150 * fp.unit("MW"), 0, 0], atol=1e-12)  # -right = left (+x)
+    # linear: twice the value, twice the displacement
+    np.testing.assert_allclose(fap_rig.blendshape("raise_l_cornerlip")[i] * 200, v[1][i] - face.vertices[i])
+
+
+def test_rotations_and_unsupported_faps(fap_rig, face):
+    fp = fap_rig.points
+    s = FapStream.empty(3)
+    s.set("head_yaw", 30000, frames=[0])  # 0.3 rad to the face's left
+    s.set("open_jaw", 400, frames=[1])
+    s.set("raise_tongue_tip", 100, frames=[2])
+    v = fap_rig.evaluate(s)
+    # the head turns rigidly: distances kept, the gaze turned towards +x by 0.3 rad
+    d0 = np.linalg.norm(face.vertices[::97] - face.vertices[5], axis=1)
+    np.testing.assert_allclose(np.linalg.norm(v[0][::97] - v[0][5], axis=1), d0, atol=1e-12)
+    nose = fp.frame.to_local(v[0][face.kdtree.query(fp["9.3"])[1]]) - fp.frame.to_local(fp["7.1"])
+    nose0 = fp.frame.to_local(fp["9.3"]) - fp.frame.to_local(fp["7.1"])
+    turn = np.arctan2(nose[0], nose[2]) - np.arctan2(nose0[0], nose0[2])
+    assert turn == pytest.approx(0.3, abs=1e-9)
+    # the jaw drops the chin by about open_jaw * MNS / 1024 and leaves the eyes alone
+    _, c = face.kdtree.query(fp["2.1"])
+    drop = -fp.frame.vectors_to_local(v[1][c] - face.vertices[c])[1]
+    assert drop == pytest.approx(400 * fp.unit("MNS"), rel=0.02)
+    _, e = face.kdtree.query(fp["3.1"])
+    np.testing.assert_array_equal(v[1][e], face.vertices[e])
+    # a face mask has no tongue: the FAP is reported and does nothing
+    assert any("raise_tongue_tip" in w for w in fap_rig.check(s))
+    np.testing.assert_array_equal(v[2], face.vertices)

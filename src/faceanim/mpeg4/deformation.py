@@ -1,0 +1,191 @@
+"""FAPs deform a face: a FaceDefTable built automatically for any face (MPEG-4, section 4).
+
+For every translational FAP whose feature point the face has, the table holds the vertices it
+moves and one displacement per unit of the FAP's value: the FAP direction times FAPU / 1024 times
+a weight that is 1 near the feature point and falls off along the skin (a raised cosine of the
+surface distance, the falloff an open MPEG-4 player uses) within a radius set by the FAP's group.
+Lip and eyelid FAPs keep to their own side of the mouth or eye (a raised lower lip never lifts the
+upper one). The table is linear in the values, so each of these FAPs compiles to a blendshape and
+a FAP stream to one sparse product per frame (:class:`FapRig.evaluate`).
+
+Rotations are kept as rotations: the jaw (open_jaw turns the jaw about a hinge in front of the
+ears so that the chin, 2.1, drops by the FAP's amount; thrust_jaw and shift_jaw translate it),
+and the head (pitch, yaw, roll about 7.1). Eyeball rotations need eyeballs: a face mask without
+them reports these FAPs as unsupported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..facs import _graph_distance, default_library, skin, slit_sides
+from ..mesh import Mesh
+from .faps import ANGLE_UNIT, N_FAPS, FapError, FapStream, direction_vector, faps
+from .fdp import FeaturePoints, feature_points
+
+# influence radius of a FAP's feature point by FAP group: (factor, FAPU); within PLATEAU of the
+# radius the weight is 1 (a lid or brow moves as a piece), then it falls off as a raised cosine
+RADIUS = {2: (0.45, "MW"), 3: (0.3, "ES"), 4: (0.35, "ES"), 5: (0.35, "ES"), 8: (0.45, "MW"),
+          9: (0.25, "ES"), 10: (0.25, "ES")}
+PLATEAU = 0.3
+# feature points on one side of a slit: (slit, lower side?)
+SIDE = {"2.2": ("mouth", False), "2.6": ("mouth", False), "2.7": ("mouth", False), "8.1": ("mouth", False),
+        "8.5": ("mouth", False), "8.6": ("mouth", False), "8.9": ("mouth", False), "8.10": ("mouth", False),
+        "2.3": ("mouth", True), "2.8": ("mouth", True), "2.9": ("mouth", True), "8.2": ("mouth", True),
+        "8.7": ("mouth", True), "8.8": ("mouth", True),
+        "3.1": ("eye_L", False), "3.3": ("eye_L", True), "3.2": ("eye_R", False), "3.4": ("eye_R", True)}
+JAW_FAPS = (3, 14, 15)
+HEAD_FAPS = (48, 49, 50)
+EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)
+
+
+def _falloff(d: np.ndarray, radius: float) -> np.ndarray:
+    """1 within PLATEAU * radius, then a raised cosine to 0 at the radius."""
+    t = np.clip((d / radius - PLATEAU) / (1.0 - PLATEAU), 0.0, 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * t))
+
+
+@dataclass
+class FapRig:
+    """A face rigged for MPEG-4 FAPs: blendshapes per unit value, jaw and head rotations."""
+
+    mesh: Mesh
+    points: FeaturePoints
+    blendshapes: sp.csr_matrix  # (68, 3V): row n-1 = displacement per unit value of FAP n
+    supported: np.ndarray  # (68,) bool
+    unsupported: dict[int, str] = field(default_factory=dict)
+    jaw_weight: np.ndarray = None
+    jaw_pivot: np.ndarray = None
+
+    @classmethod
+    def build(cls, mesh: Mesh, lm478: np.ndarray) -> FapRig:
+        fp = feature_points(mesh, lm478)
+        frame = fp.frame
+        on_skin = skin(mesh, lm478)
+        sides = slit_sides(mesh, lm478, default_library())
+        rows, cols, vals = [], [], []
+        supported = np.zeros(N_FAPS, dtype=bool)
+        unsupported: dict[int, str] = {}
+        _, near = mesh.kdtree.query(np.stack([p for p in fp.positions.values()]))
+        vertex_of = dict(zip(fp.positions, near))
+        for f in faps():
+            n = f.number
+            if f.is_high_level:
+                supported[n - 1] = True  # visemes and expressions expand to low-level FAPs
+                continue
+            if n in HEAD_FAPS or n in JAW_FAPS:
+                supported[n - 1] = True
+                continue
+            if n in EYEBALL_FAPS or f.is_rotation:
+                unsupported[n] = "needs eyeballs or a tongue modelled as parts of the mesh"
+                continue
+            missing = [p for p in f.feature_points if p in fp.missing]
+            if missing:
+                unsupported[n] = f"feature point {missing[0]} ({fp.missing[missing[0]]}) is not on this face"
+                continue
+            unit = fp.unit(f.unit)
+            factor, unit_name = RADIUS.get(f.group, (0.3, "ES"))
+            radius = factor * fp.fapu[unit_name]
+            d = direction_vector(f) @ frame.rotation  # face frame -> mesh
+            for p in f.feature_points:
+                dist = _graph_distance(mesh, np.array([vertex_of[p]]), limit=radius)
+                w = np.where(np.isfinite(dist), _falloff(dist, radius), 0.0) * on_skin
+                if p in SIDE:
+                    slit, lower = SIDE[p]
+                    w = w * (sides[slit] == lower)
+                idx = np.flatnonzero(w > 1e-6)
+                for axis in range(3):
+                    rows.append(np.full(len(idx), n - 1))
+                    cols.append(3 * idx + axis)
+                    vals.append(w[idx] * d[axis] * unit)
+            supported[n - 1] = True
+        shapes = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                               shape=(N_FAPS, 3 * mesh.n_vertices))
+        # the jaw: skin below the mouth slit and the chin, fading out towards the ears and the
+        # upper lip; hinge in front of the ears, at the level of the nose tip
+        local = frame.to_local(mesh.vertices)
+        lm = np.asarray(lm478)
+        lower_face = sides["mouth"] & on_skin
+        y_mouth = frame.to_local(lm[[61, 291]])[:, 1].mean()
+        fade_up = np.clip((y_mouth - local[:, 1]) / (0.25 * frame.iod) + 1.0, 0.0, 1.0)
+        ear_x = abs(frame.to_local(lm[[234, 454]])[:, 0]).mean()
+        fade_side = np.clip((ear_x - np.abs(local[:, 0])) / (0.35 * frame.iod), 0.0, 1.0)
+        jaw = lower_face * fade_up * fade_side
+        pivot_local = np.array([0.0, 0.0, frame.to_local(lm[[234, 454]])[:, 2].mean()])
+        pivot = frame.origin + pivot_local @ frame.rotation
+        return cls(mesh, fp, shapes, supported, unsupported, jaw, pivot)
+
+    def check(self, stream: FapStream) -> list[str]:
+        """Warnings for FAPs the stream sets that this face cannot show."""
+        used = np.flatnonzero(stream.mask.any(axis=0)) + 1
+        return [f"FAP {n} ({faps()[n - 1].name}): {self.unsupported[n]}" for n in used if n in self.unsupported]
+
+    def evaluate(self, stream: FapStream) -> np.ndarray:
+        """Vertices (F, V, 3) for a FAP stream (values where the mask is set, 0 elsewhere)."""
+        vals = np.where(stream.mask, stream.values, 0.0)
+        v0 = self.mesh.vertices
+        out = (sp.csr_matrix(vals) @ self.blendshapes).toarray().reshape(len(vals), -1, 3) + v0[None]
+        frame = self.points.frame
+        mns = self.points.unit("MNS")
+        mw = self.points.unit("MW")
+        chin = frame.to_local(self.points["2.1"]) - frame.to_local(self.jaw_pivot)
+        jaw = self.jaw_weight[:, None]
+        rel = (v0 - self.jaw_pivot) @ frame.rotation.T  # jaw-pivot frame
+        for k in range(len(vals)):
+            open_, thrust, shift = vals[k, 2], vals[k, 13], vals[k, 14]
+            if open_ or thrust or shift:
+                # turn about the hinge's x axis so that the chin (2.1) drops by open_jaw * MNS / 1024
+                angle = self._jaw_angle(open_ * mns, chin)
+                c, s = np.cos(angle), np.sin(angle)
+                turned = rel.copy()
+                turned[:, 1] = c * rel[:, 1] - s * rel[:, 2]
+                turned[:, 2] = s * rel[:, 1] + c * rel[:, 2]
+                turned += np.array([-shift * mw, 0.0, thrust * mns])  # shift_jaw + is the face's right
+                out[k] += jaw * ((turned - rel) @ frame.rotation)
+            pitch, yaw, roll = vals[k, 47] * ANGLE_UNIT, vals[k, 48] * ANGLE_UNIT, vals[k, 49] * ANGLE_UNIT
+            if pitch or yaw or roll:
+                out[k] = self._head(out[k], pitch, yaw, roll)
+        return out
+
+    @staticmethod
+    def _jaw_angle(drop: float, chin: np.ndarray) -> float:
+        """The hinge angle that lowers the chin (at ``chin`` = (x, y, z) from the hinge) by ``drop``:
+        y (1 - cos a) + z sin a = drop, by Newton's method from drop / z."""
+        y, z = float(chin[1]), max(float(chin[2]), 1e-12)
+        a = drop / z
+        for _ in range(8):
+            f = y * (1 - np.cos(a)) + z * np.sin(a) - drop
+            a -= f / (y * np.sin(a) + z * np.cos(a))
+        return float(np.clip(a, -np.pi / 3, np.pi / 3))
+
+    def _head(self, verts: np.ndarray, pitch: float, yaw: float, roll: float) -> np.ndarray:
+        """Rotate the head about 7.1: pitch + nods down, yaw + turns to the face's left, roll + to its right."""
+        frame = self.points.frame
+
+        def rot(axis, a):
+            c, s = np.cos(a), np.sin(a)
+            if axis == 0:
+                return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+            if axis == 1:
+                return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+            return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+        # face frame: x left, y up, z forward. A nod down (+pitch) about +x brings the gaze towards
+        # -y; a turn to the face's left (+yaw) about +y brings it towards +x; a roll to the face's
+        # right (+roll) about +z brings the top of the head towards -x
+        r_local = rot(1, yaw) @ rot(0, pitch) @ rot(2, roll)
+        r = frame.rotation.T @ r_local @ frame.rotation
+        pivot = self.points["7.1"]
+        return (verts - pivot) @ r.T + pivot
+
+    def blendshape(self, key) -> np.ndarray:
+        """(V, 3) displacement per unit value of a linear FAP."""
+        from .faps import fap
+
+        f = fap(key)
+        if f.number in JAW_FAPS or f.number in HEAD_FAPS or f.is_high_level:
+            raise FapError(f"FAP {f.number} ({f.name}) is a rotation or a high-level FAP, not a blendshape")
+        return self.blendshapes[f.number - 1].toarray().reshape(-1, 3)
