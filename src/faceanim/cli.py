@@ -306,6 +306,65 @@ def _cmd_wires_blend(args) -> None:
     print(f"wrote {args.output} ({len(ts)} frames, {n_seg} blend{'s' if n_seg > 1 else ''})")
 
 
+def _cmd_say(args) -> None:
+    import tempfile
+
+    from .mpeg4.actions import Action, expression_faps
+    from .mpeg4.deformation import FapRig
+    from .mpeg4.fapfile import write_fap
+    from .mpeg4.player import gltf_stream, render_stream, speech_stream
+    from .speech import align, synthesize
+
+    if (args.text is None) == (args.audio is None):
+        raise FaceAnimError('give the text to say, or --audio clip.wav with --transcript clip.txt')
+    suffix = Path(args.output).suffix.lower()
+    mesh, lm = _face_and_landmarks(args.face, args.landmarks)
+    rig = FapRig.build(mesh, lm)
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.audio:
+            if not args.transcript:
+                raise FaceAnimError("--audio needs --transcript (the words spoken in it)")
+            from .fileio import read_text
+
+            text = read_text(args.transcript, "transcript")
+            wav = Path(args.audio)
+        else:
+            text = args.text
+            wav = synthesize(text, Path(tmp) / "speech.wav", voice=args.voice)
+        phones = align(wav, text)
+        extra = []
+        if args.expression:
+            end = max(p.end for p in phones)
+            extra.append(Action(args.expression, expression_faps(args.expression), 0.0, end + 0.2,
+                                args.intensity, "linear", 0.1, 0.1, 0.3))
+        stream = speech_stream(rig, phones, args.fps, extra, name=Path(args.output).stem)
+        if suffix == ".fap":
+            write_fap(args.output, stream)
+        elif suffix == ".glb":
+            gltf_stream(rig, stream, args.output)
+        else:
+            render_stream(rig, stream, args.output, lm, size=args.size, audio=wav)
+    print(f"wrote {args.output} ({stream.n_frames} frames, {len(phones)} phones, "
+          f"{stream.n_frames / stream.fps:.1f} s)")
+
+
+def _cmd_fap_play(args) -> None:
+    from .mpeg4.deformation import FapRig
+    from .mpeg4.fapfile import read_fap
+    from .mpeg4.player import gltf_stream, render_stream
+
+    stream = read_fap(args.fap)
+    mesh, lm = _face_and_landmarks(args.face, args.landmarks)
+    rig = FapRig.build(mesh, lm)
+    for warning in rig.check(stream):
+        print(f"faceanim fap play: warning: {warning}", file=sys.stderr)
+    if Path(args.output).suffix.lower() == ".glb":
+        gltf_stream(rig, stream, args.output)
+    else:
+        render_stream(rig, stream, args.output, lm, size=args.size, audio=args.audio)
+    print(f"wrote {args.output} ({stream.n_frames} frames at {stream.fps:g} fps)")
+
+
 def _output_path(suffixes):
     def check(value: str) -> str:
         if Path(value).suffix.lower() not in suffixes:
@@ -427,6 +486,31 @@ def build_parser() -> argparse.ArgumentParser:
     wb.add_argument("-o", "--output", required=True, type=_output_path([".glb", ".mp4"]))
     wb.add_argument("--size", type=int, default=512)
     wb.set_defaults(func=_cmd_wires_blend)
+
+    sy = sub.add_parser("say", help="lip-sync: text (synthesized) or recorded speech + transcript to an animated face")
+    sy.add_argument("text", nargs="?", help="what to say (spoken by espeak-ng)")
+    sy.add_argument("--audio", help="recorded speech (16-bit WAV) instead of text")
+    sy.add_argument("--transcript", help="text file with the words spoken in --audio")
+    sy.add_argument("--face", default="default", help="mesh (default: the embedded default face)")
+    sy.add_argument("--landmarks", help="landmark JSON for the face instead of detection")
+    sy.add_argument("--expression", help="an MPEG-4 expression held while speaking (joy, sadness, ...)")
+    sy.add_argument("--intensity", type=float, default=0.6, help="intensity of --expression")
+    sy.add_argument("--voice", default="en-us", help="espeak-ng voice")
+    sy.add_argument("--fps", type=float, default=25.0)
+    sy.add_argument("--size", type=int, default=512)
+    sy.add_argument("-o", "--output", required=True, type=_output_path([".mp4", ".glb", ".fap"]))
+    sy.set_defaults(func=_cmd_say)
+
+    fp = sub.add_parser("fap", help="MPEG-4 FAP files")
+    fsub = fp.add_subparsers(dest="fap_command", required=True)
+    fpl = fsub.add_parser("play", help="play a .fap file on a face")
+    fpl.add_argument("fap")
+    fpl.add_argument("--face", default="default", help="mesh (default: the embedded default face)")
+    fpl.add_argument("--landmarks", help="landmark JSON for the face instead of detection")
+    fpl.add_argument("--audio", help="WAV to put under the video")
+    fpl.add_argument("--size", type=int, default=512)
+    fpl.add_argument("-o", "--output", required=True, type=_output_path([".mp4", ".glb"]))
+    fpl.set_defaults(func=_cmd_fap_play)
     return p
 
 

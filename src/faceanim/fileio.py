@@ -57,3 +57,14 @@ def write_json(path: str | os.PathLike, data: object) -> None:
     with atomic_output(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
         json.dump(data, fh, indent=1)
         fh.write("\n")
+
+
+def read_text(path: str | os.PathLike, what: str = "text file") -> str:
+    """Read a UTF-8 text file, turning every failure into an :class:`InputFileError` naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{what} '{path}' does not exist; check the path")
+    try:
+        return path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(f"cannot read {what} '{path}': {exc}") from None

@@ -210,8 +210,9 @@ def render_png(mesh: Mesh, path: str | os.PathLike, vertices: np.ndarray | None 
         return save_png(path, r.render(vertices))
 
 
-def write_video(path: str | os.PathLike, frames, fps: float = 30.0, progress=None) -> Path:
-    """Encode an iterable of RGB frames to MP4 (H.264, yuv420p) with imageio-ffmpeg."""
+def write_video(path: str | os.PathLike, frames, fps: float = 30.0, progress=None, audio=None) -> Path:
+    """Encode an iterable of RGB frames to MP4 (H.264, yuv420p) with imageio-ffmpeg, with the
+    sound of the WAV file ``audio`` (AAC) when given."""
     import imageio_ffmpeg
 
     path = Path(path)
@@ -224,10 +225,11 @@ def write_video(path: str | os.PathLike, frames, fps: float = 30.0, progress=Non
                     h, w = frame.shape[:2]
                     if w % 2 or h % 2:
                         raise FaceAnimError(f"video frames need even width and height, got {w}x{h}")
+                    sound = {} if audio is None else {"audio_path": str(audio), "audio_codec": "aac"}
                     writer = imageio_ffmpeg.write_frames(
                         str(tmp), (w, h), fps=fps, codec="libx264", pix_fmt_out="yuv420p",
                         quality=None, bitrate=None, output_params=["-crf", "18", "-preset", "medium"],
-                        macro_block_size=1, ffmpeg_log_level="error")
+                        macro_block_size=1, ffmpeg_log_level="error", **sound)
                     writer.send(None)
                 writer.send(frame)
                 if progress is not None:

@@ -104,19 +104,35 @@ class FapRig:
             supported[n - 1] = True
         shapes = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                                shape=(N_FAPS, 3 * mesh.n_vertices))
-        # the jaw: skin below the mouth slit and the chin, fading out towards the ears and the
-        # upper lip; hinge in front of the ears, at the level of the nose tip
+        # the jaw: between the mouth corners, the skin on the lower side of the mouth slit; past
+        # the corners, a smooth band across the level of the mouth (no seam across the cheeks);
+        # fading out towards the ears. Hinge in front of the ears, at the level of the nose tip.
         local = frame.to_local(mesh.vertices)
         lm = np.asarray(lm478)
-        lower_face = sides["mouth"] & on_skin
-        y_mouth = frame.to_local(lm[[61, 291]])[:, 1].mean()
-        fade_up = np.clip((y_mouth - local[:, 1]) / (0.25 * frame.iod) + 1.0, 0.0, 1.0)
+        corners = frame.to_local(lm[[61, 291]])
+        y_mouth, centre = corners[:, 1].mean(), corners[:, 0].mean()
+        half = abs(corners[1, 0] - corners[0, 0]) / 2
+
+        def smooth(t):
+            t = np.clip(t, 0.0, 1.0)
+            return t * t * (3 - 2 * t)
+
+        past = smooth((np.abs(local[:, 0] - centre) - half) / (0.4 * half))
+        below = smooth((y_mouth - local[:, 1]) / (0.35 * frame.iod) + 0.5)
+        inside = sides["mouth"].astype(float)
         ear_x = abs(frame.to_local(lm[[234, 454]])[:, 0]).mean()
         fade_side = np.clip((ear_x - np.abs(local[:, 0])) / (0.35 * frame.iod), 0.0, 1.0)
-        jaw = lower_face * fade_up * fade_side
+        jaw = ((1 - past) * inside + past * below) * fade_side * on_skin
         pivot_local = np.array([0.0, 0.0, frame.to_local(lm[[234, 454]])[:, 2].mean()])
         pivot = frame.origin + pivot_local @ frame.rotation
         return cls(mesh, fp, shapes, supported, unsupported, jaw, pivot)
+
+    @property
+    def lip_gap(self) -> float:
+        """The neutral face's gap between the inner lips (2.2 to 2.3) in MNS units (0 when closed)."""
+        fp = self.points
+        gap = fp.frame.to_local(fp["2.2"])[1] - fp.frame.to_local(fp["2.3"])[1]
+        return max(float(gap), 0.0) / fp.unit("MNS")
 
     def check(self, stream: FapStream) -> list[str]:
         """Warnings for FAPs the stream sets that this face cannot show."""
