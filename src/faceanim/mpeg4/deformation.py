@@ -37,15 +37,34 @@ SIDE = {"2.2": ("mouth", False), "2.6": ("mouth", False), "2.7": ("mouth", False
         "2.3": ("mouth", True), "2.8": ("mouth", True), "2.9": ("mouth", True), "8.2": ("mouth", True),
         "8.7": ("mouth", True), "8.8": ("mouth", True),
         "3.1": ("eye_L", False), "3.3": ("eye_L", True), "3.2": ("eye_R", False), "3.4": ("eye_R", True)}
+# feature points along one lip contour or brow: a FAP at one of them falls off to zero at its
+# neighbours (a raised cosine over the gap), so neighbouring FAPs share the skin between them like
+# hat functions and each feature point moves by its own FAP alone
+CHAINS = (("2.5", "2.7", "2.2", "2.6", "2.4"), ("2.5", "2.9", "2.3", "2.8", "2.4"),
+          ("8.4", "8.6", "8.1", "8.5", "8.3"), ("8.4", "8.8", "8.2", "8.7", "8.3"),
+          ("4.1", "4.3", "4.5"), ("4.2", "4.4", "4.6"))
 JAW_FAPS = (3, 14, 15)
 HEAD_FAPS = (48, 49, 50)
 EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)
 
 
-def _falloff(d: np.ndarray, radius: float) -> np.ndarray:
-    """1 within PLATEAU * radius, then a raised cosine to 0 at the radius."""
-    t = np.clip((d / radius - PLATEAU) / (1.0 - PLATEAU), 0.0, 1.0)
+def _falloff(d: np.ndarray, radius: float, plateau: float = PLATEAU) -> np.ndarray:
+    """1 within ``plateau`` * radius, then a raised cosine to 0 at the radius."""
+    t = np.clip((d / radius - plateau) / (1.0 - plateau), 0.0, 1.0)
     return 0.5 * (1.0 + np.cos(np.pi * t))
+
+
+def _chain_gaps(fp: FeaturePoints) -> dict[str, float]:
+    """For each feature point on a chain, the distance to its nearest chain neighbour."""
+    gaps: dict[str, float] = {}
+    for chain in CHAINS:
+        if any(p not in fp.positions for p in chain):
+            continue
+        for k, p in enumerate(chain):
+            near = [chain[j] for j in (k - 1, k + 1) if 0 <= j < len(chain)]
+            d = min(float(np.linalg.norm(fp.positions[p] - fp.positions[q])) for q in near)
+            gaps[p] = min(gaps.get(p, np.inf), d)
+    return gaps
 
 
 @dataclass
@@ -59,6 +78,9 @@ class FapRig:
     unsupported: dict[int, str] = field(default_factory=dict)
     jaw_weight: np.ndarray = None
     jaw_pivot: np.ndarray = None
+    _bt: sp.csr_matrix = field(default=None, repr=False)
+    _jaw_rows: np.ndarray = field(default=None, repr=False)
+    _jaw_rel: np.ndarray = field(default=None, repr=False)
 
     @classmethod
     def build(cls, mesh: Mesh, lm478: np.ndarray) -> FapRig:
@@ -71,6 +93,7 @@ class FapRig:
         unsupported: dict[int, str] = {}
         _, near = mesh.kdtree.query(np.stack([p for p in fp.positions.values()]))
         vertex_of = dict(zip(fp.positions, near))
+        gaps = _chain_gaps(fp)
         for f in faps():
             n = f.number
             if f.is_high_level:
@@ -91,8 +114,9 @@ class FapRig:
             radius = factor * fp.fapu[unit_name]
             d = direction_vector(f) @ frame.rotation  # face frame -> mesh
             for p in f.feature_points:
-                dist = _graph_distance(mesh, np.array([vertex_of[p]]), limit=radius)
-                w = np.where(np.isfinite(dist), _falloff(dist, radius), 0.0) * on_skin
+                r, plateau = (min(radius, gaps[p]), 0.0) if p in gaps else (radius, PLATEAU)
+                dist = _graph_distance(mesh, np.array([vertex_of[p]]), limit=r)
+                w = np.where(np.isfinite(dist), _falloff(dist, r, plateau), 0.0) * on_skin
                 if p in SIDE:
                     slit, lower = SIDE[p]
                     w = w * (sides[slit] == lower)
@@ -142,40 +166,45 @@ class FapRig:
     def evaluate(self, stream: FapStream) -> np.ndarray:
         """Vertices (F, V, 3) for a FAP stream (values where the mask is set, 0 elsewhere)."""
         vals = np.where(stream.mask, stream.values, 0.0)
-        v0 = self.mesh.vertices
-        out = (sp.csr_matrix(vals) @ self.blendshapes).toarray().reshape(len(vals), -1, 3) + v0[None]
+        n_frames, v0 = len(vals), self.mesh.vertices
         frame = self.points.frame
-        mns = self.points.unit("MNS")
-        mw = self.points.unit("MW")
-        chin = frame.to_local(self.points["2.1"]) - frame.to_local(self.jaw_pivot)
-        jaw = self.jaw_weight[:, None]
-        rel = (v0 - self.jaw_pivot) @ frame.rotation.T  # jaw-pivot frame
-        for k in range(len(vals)):
-            open_, thrust, shift = vals[k, 2], vals[k, 13], vals[k, 14]
-            if open_ or thrust or shift:
-                # turn about the hinge's x axis so that the chin (2.1) drops by open_jaw * MNS / 1024
-                angle = self._jaw_angle(open_ * mns, chin)
-                c, s = np.cos(angle), np.sin(angle)
-                turned = rel.copy()
-                turned[:, 1] = c * rel[:, 1] - s * rel[:, 2]
-                turned[:, 2] = s * rel[:, 1] + c * rel[:, 2]
-                turned += np.array([-shift * mw, 0.0, thrust * mns])  # shift_jaw + is the face's right
-                out[k] += jaw * ((turned - rel) @ frame.rotation)
-            pitch, yaw, roll = vals[k, 47] * ANGLE_UNIT, vals[k, 48] * ANGLE_UNIT, vals[k, 49] * ANGLE_UNIT
-            if pitch or yaw or roll:
-                out[k] = self._head(out[k], pitch, yaw, roll)
+        if self._bt is None:
+            self._bt = self.blendshapes.T.tocsr()
+            self._jaw_rows = np.flatnonzero(self.jaw_weight > 0)
+            self._jaw_rel = (v0[self._jaw_rows] - self.jaw_pivot) @ frame.rotation.T  # jaw-hinge frame
+        out = (self._bt @ vals.T).T.reshape(n_frames, -1, 3)
+        out += v0
+        jaw_frames = np.flatnonzero(np.abs(vals[:, [2, 13, 14]]).sum(1) > 0)
+        if len(jaw_frames):
+            mns, mw = self.points.unit("MNS"), self.points.unit("MW")
+            chin = frame.to_local(self.points["2.1"]) - frame.to_local(self.jaw_pivot)
+            rows, rel = self._jaw_rows, self._jaw_rel
+            open_, thrust, shift = (vals[jaw_frames, 2], vals[jaw_frames, 13], vals[jaw_frames, 14])
+            # turn about the hinge's x axis so that the chin (2.1) drops by open_jaw * MNS / 1024
+            angle = self._jaw_angle(open_ * mns, chin)
+            c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
+            d = np.empty((len(jaw_frames), len(rows), 3))
+            d[..., 0] = -(shift * mw)[:, None]  # shift_jaw + moves towards the face's right (-x)
+            d[..., 1] = c * rel[:, 1] - s * rel[:, 2] - rel[:, 1]
+            d[..., 2] = s * rel[:, 1] + c * rel[:, 2] - rel[:, 2] + (thrust * mns)[:, None]
+            moved = self.jaw_weight[rows, None] * (d @ frame.rotation)
+            for j, k in enumerate(jaw_frames):
+                out[k, rows] += moved[j]
+        for k in np.flatnonzero(np.abs(vals[:, 47:50]).sum(1) > 0):
+            pitch, yaw, roll = vals[k, 47:50] * ANGLE_UNIT
+            out[k] = self._head(out[k], pitch, yaw, roll)
         return out
 
     @staticmethod
-    def _jaw_angle(drop: float, chin: np.ndarray) -> float:
-        """The hinge angle that lowers the chin (at ``chin`` = (x, y, z) from the hinge) by ``drop``:
+    def _jaw_angle(drop: np.ndarray, chin: np.ndarray) -> np.ndarray:
+        """Hinge angles that lower the chin (at ``chin`` = (x, y, z) from the hinge) by ``drop``:
         y (1 - cos a) + z sin a = drop, by Newton's method from drop / z."""
         y, z = float(chin[1]), max(float(chin[2]), 1e-12)
-        a = drop / z
+        a = np.asarray(drop, dtype=np.float64) / z
         for _ in range(8):
             f = y * (1 - np.cos(a)) + z * np.sin(a) - drop
-            a -= f / (y * np.sin(a) + z * np.cos(a))
-        return float(np.clip(a, -np.pi / 3, np.pi / 3))
+            a = a - f / (y * np.sin(a) + z * np.cos(a))
+        return np.clip(a, -np.pi / 3, np.pi / 3)
 
     def _head(self, verts: np.ndarray, pitch: float, yaw: float, roll: float) -> np.ndarray:
         """Rotate the head about 7.1: pitch + nods down, yaw + turns to the face's left, roll + to its right."""
