@@ -1,0 +1,115 @@
+"""Actions, visemes and speech: the blending formula, co-articulation, alignment, synthesis, say."""
+
+import shutil
+
+import numpy as np
+import pytest
+
+from conftest import DATA, need
+from faceanim.cli import main
+from faceanim.mpeg4.actions import Action, blend_actions, expression_faps, fap_set
+from faceanim.mpeg4.faps import FapError
+from faceanim.speech import Phone, phone_viseme, viseme_actions
+from faceanim.speech.phonemes import SpeechError, words_of
+
+SPEECH = DATA / "speech-librivox"
+has_espeak = pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="espeak-ng is not installed (scripts/setup.sh installs it)")
+
+
+def test_single_action_follows_its_envelope():
+    a = Action("smile", {12: 200.0, 13: 200.0}, start=0.2, duration=1.0, intensity=0.5, envelope="linear",
+               attack=0.2, release=0.2)
+    s = blend_actions([a], 40, 25.0)
+    t = np.arange(40) / 25.0
+    want = 0.5 * 200.0 * a.envelope_at(t)
+    np.testing.assert_allclose(s.column(12), want, atol=1e-12)
+    assert s.column(12)[0] == 0 and s.mask[10, 11] and not s.mask[0, 11]
+    np.testing.assert_allclose(a.envelope_at(np.array([0.3, 0.7, 1.1])), [0.5, 1.0, 0.5], atol=1e-12)
+
+
+def test_blending_is_continuous_and_respects_weights():
+    surprise = Action("surprise", {3: 500.0}, 0.0, 2.0, 1.0, "smooth", 0.2, 0.2, weight=0.3)
+    b = Action("b", {3: 0.0}, 0.8, 0.3, 1.0, "smooth", 0.4, 0.4, weight=6.0)
+    fps = 1000.0
+    s = blend_actions([surprise, b], 1500, fps)
+    jaw = s.column(3)
+    # continuous: at 1 ms steps no change is large (a plain average would jump by ~250 where
+    # 'b' starts and ends)
+    assert np.abs(np.diff(jaw)).max() < 40
+    assert jaw[int(0.95 * fps)] < 0.1 * 500  # the heavy plosive closes the jaw inside the surprise
+    assert jaw[int(0.5 * fps)] == pytest.approx(500, rel=1e-6)  # surprise alone before 'b'
+
+
+def test_action_and_fap_set_errors():
+    with pytest.raises(FapError, match="envelope"):
+        Action("x", {3: 1.0}, 0, 1, envelope="square")
+    with pytest.raises(FapError, match="duration"):
+        Action("x", {3: 1.0}, 0, 0)
+    with pytest.raises(FapError, match="unknown FAP"):
+        fap_set({"open_mouth": 100})
+    with pytest.raises(FapError, match="expression"):
+        expression_faps("boredom")
+    assert expression_faps("surprise")[3] > 0
+
+
+def test_phone_to_viseme_and_coarticulation():
+    assert phone_viseme("P") == phone_viseme("b") == phone_viseme("M") == 1
+    assert phone_viseme("AA1") == 10 and phone_viseme("UW") == 14 and phone_viseme("SIL") == 0
+    with pytest.raises(FapError):
+        phone_viseme("QQ")
+    phones = [Phone("HH", 0.0, 0.05), Phone("AA", 0.05, 0.25), Phone("P", 0.25, 0.32), Phone("IY", 0.32, 0.5)]
+    acts = viseme_actions(phones, lip_gap=100.0)
+    assert [a.extra["viseme"] for a in acts] == [10, 1, 12]
+    vowel, plosive = acts[0], acts[1]
+    assert vowel.start < 0.05 and vowel.end > 0.25  # vowels spread into their neighbours
+    assert plosive.weight > vowel.weight and plosive.faps[4] > 50  # closure outweighs, closes the gap
+
+
+def test_words_and_text_without_words():
+    assert words_of("Hello, how are you?") == ["hello", "how", "are", "you"]
+    with pytest.raises(SpeechError, match="no words"):
+        words_of(" ,.!? ")
+
+
+def test_alignment_of_real_speech():
+    from faceanim.speech import align, load_wav
+
+    wav = need(SPEECH / "clip-0880.wav")
+    phones = align(wav, (SPEECH / "clip-0880.txt").read_text())
+    x, rate = load_wav(wav)
+    starts = [p.start for p in phones]
+    assert starts == sorted(starts) and phones[-1].end <= len(x) / rate + 0.02
+    assert sum(p.phone != "SIL" for p in phones) > 15
+    with pytest.raises(SpeechError, match="too short|match"):
+        align(wav, (SPEECH / "clip-0880.txt").read_text() * 8)  # far more words than the audio holds
+    with pytest.raises(SpeechError, match="does not know"):
+        align(wav, "zxqvbn wordz")
+
+
+@has_espeak
+def test_say_writes_a_fap_file_and_glb(tmp_path, capsys):
+    from faceanim.mpeg4 import read_fap
+
+    out = tmp_path / "hello.fap"
+    assert main(["say", "Hello, how are you?", "-o", str(out)]) == 0
+    s = read_fap(out)
+    assert s.n_frames > 20 and s.column("open_jaw").max() > 100
+    assert main(["say", "Hello", "--expression", "joy", "-o", str(tmp_path / "h.glb")]) == 0
+    assert main(["say", "...", "-o", str(tmp_path / "x.fap")]) == 2
+    assert "no words" in capsys.readouterr().err
+    assert not (tmp_path / "x.fap").exists()
+
+
+def test_fap_play_renders_a_video(tmp_path):
+    from faceanim.mpeg4 import FapStream, write_fap
+
+    s = FapStream.empty(6, fps=10)
+    s.set("open_jaw", [0, 100, 300, 500, 300, 0])
+    s.set("head_yaw", 5000, frames=[3])
+    write_fap(tmp_path / "a.fap", s)
+    assert main(["fap", "play", str(tmp_path / "a.fap"), "--size", "96", "-o", str(tmp_path / "a.mp4")]) == 0
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(tmp_path / "a.mp4"))
+    next(reader)
+    assert sum(1 for _ in reader) == 6
