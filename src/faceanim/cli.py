@@ -313,7 +313,7 @@ def _cmd_say(args) -> None:
     from .mpeg4.deformation import FapRig
     from .mpeg4.fapfile import write_fap
     from .mpeg4.player import gltf_stream, render_stream, speech_stream
-    from .speech import align, synthesize
+    from .speech import align, say_timed
 
     if (args.text is None) == (args.audio is None):
         raise FaceAnimError('give the text to say, or --audio clip.wav with --transcript clip.txt')
@@ -328,10 +328,10 @@ def _cmd_say(args) -> None:
 
             text = read_text(args.transcript, "transcript")
             wav = Path(args.audio)
+            phones = align(wav, text)
         else:
-            text = args.text
-            wav = synthesize(text, Path(tmp) / "speech.wav", voice=args.voice)
-        phones = align(wav, text)
+            wav = Path(tmp) / "speech.wav"
+            phones = say_timed(args.text, wav, voice=args.voice)
         extra = []
         if args.expression:
             end = max(p.end for p in phones)

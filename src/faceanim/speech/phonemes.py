@@ -81,10 +81,15 @@ def _to_16k(x: np.ndarray, rate: int) -> bytes:
     return (np.clip(x, -1, 1) * 32767).astype("<i2").tobytes()
 
 
-def align(audio, transcript: str, rate: int | None = None) -> list[Phone]:
-    """Timed phones of ``transcript`` in ``audio`` (a WAV path, or samples with ``rate``)."""
+def _decoder():
     from pocketsphinx import Decoder
 
+    return Decoder(samprate=SAMPLE_RATE, loglevel="FATAL")
+
+
+def align(audio, transcript: str, rate: int | None = None, decoder=None) -> list[Phone]:
+    """Timed phones of ``transcript`` in ``audio`` (a WAV path, or samples with ``rate``);
+    ``decoder`` reuses a pocketsphinx decoder (loading the model takes ~0.3 s)."""
     if isinstance(audio, (str, Path)):
         x, rate = load_wav(audio)
     else:
@@ -92,7 +97,7 @@ def align(audio, transcript: str, rate: int | None = None) -> list[Phone]:
         if rate is None:
             raise SpeechError("give the sample rate of the audio samples")
     words = words_of(transcript)
-    dec = Decoder(samprate=SAMPLE_RATE, loglevel="FATAL")
+    dec = decoder or _decoder()
     unknown = [w for w in dict.fromkeys(words) if dec.lookup_word(w) is None]
     if unknown:
         raise SpeechError(f"the pronunciation dictionary does not know: {', '.join(unknown[:8])}; "
@@ -128,12 +133,80 @@ def align(audio, transcript: str, rate: int | None = None) -> list[Phone]:
 def synthesize(text: str, wav_path, voice: str = "en-us", speed: int = 160) -> Path:
     """Speak ``text`` with espeak-ng into a 16-bit WAV file."""
     words_of(text)  # refuse text with nothing to say before starting a process
-    exe = shutil.which("espeak-ng")
-    if exe is None:
-        raise SpeechError("espeak-ng is not installed; run scripts/setup.sh (it installs Debian's espeak-ng)")
+    exe = _espeak()
     out = Path(wav_path)
     result = subprocess.run([exe, "-v", voice, "-s", str(int(speed)), "-w", str(out), str(text)],
                             capture_output=True, text=True, check=False)
     if result.returncode != 0 or not out.is_file():
         raise SpeechError(f"espeak-ng failed: {result.stderr.strip() or result.returncode}")
     return out
+
+
+def _espeak() -> str:
+    exe = shutil.which("espeak-ng")
+    if exe is None:
+        raise SpeechError("espeak-ng is not installed; run scripts/setup.sh (it installs Debian's espeak-ng)")
+    return exe
+
+
+PAUSES = {",": 0.2, ";": 0.25, ":": 0.25, ".": 0.4, "?": 0.4, "!": 0.4}
+WORD_GAP = 0.02
+
+
+def say_timed(text: str, wav_path, voice: str = "en-us", speed: int = 175) -> list[Phone]:
+    """Speak ``text`` word by word with espeak-ng into one 16 kHz WAV and return its timed phones.
+
+    Each word is synthesized alone and aligned alone (short and therefore robust: aligning a whole
+    synthesized sentence fails on the robotic voice), then the words are joined with short gaps and
+    pauses at punctuation, so every phone's time is known by construction.
+    """
+    import tempfile
+
+    tokens = re.findall(r"[A-Za-z0-9']+|[,;:.?!]", str(text))
+    words = [t for t in tokens if t not in PAUSES]
+    words_of(" ".join(words) or text)  # nothing to say -> a clear error
+    exe = _espeak()
+    dec = _decoder()
+    pieces, phones, clock = [], [], 0.0
+    silence = lambda seconds: np.zeros(int(round(seconds * SAMPLE_RATE)))  # noqa: E731
+    with tempfile.TemporaryDirectory() as tmp:
+        for token in tokens:
+            if token in PAUSES:
+                pieces.append(silence(PAUSES[token]))
+                phones.append(Phone("SIL", clock, clock + PAUSES[token]))
+                clock += PAUSES[token]
+                continue
+            word = token.lower().strip("'")
+            if dec.lookup_word(word) is None:
+                raise SpeechError(f"the pronunciation dictionary does not know '{word}'; "
+                                  "spell numbers and abbreviations out as words")
+            path = Path(tmp) / "w.wav"
+            result = subprocess.run([exe, "-v", voice, "-s", str(int(speed)), "-w", str(path), token],
+                                    capture_output=True, text=True, check=False)
+            if result.returncode != 0:
+                raise SpeechError(f"espeak-ng failed on '{token}': {result.stderr.strip()}")
+            x, rate = load_wav(path)
+            x = np.frombuffer(_to_16k(x, rate), dtype="<i2").astype(np.float64) / 32768.0
+            loud = np.flatnonzero(np.abs(x) > 0.02)
+            x = x[max(loud[0] - 160, 0):loud[-1] + 160] if len(loud) else x
+            try:
+                word_phones = [p for p in align(x, word, SAMPLE_RATE, dec) if p.phone != "SIL"]
+            except SpeechError:
+                word_phones = []
+            if not word_phones:  # spread the dictionary pronunciation evenly over the word
+                pron = dec.lookup_word(word).split()
+                step = len(x) / SAMPLE_RATE / len(pron)
+                word_phones = [Phone(ph, k * step, (k + 1) * step, word) for k, ph in enumerate(pron)]
+            phones += [Phone(p.phone, clock + p.start, clock + p.end, word) for p in word_phones]
+            pieces.append(x)
+            clock += len(x) / SAMPLE_RATE
+            pieces.append(silence(WORD_GAP))
+            clock += WORD_GAP
+    audio = np.concatenate(pieces)
+    out = Path(wav_path)
+    with wave.open(str(out), "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(SAMPLE_RATE)
+        w.writeframes((np.clip(audio, -1, 1) * 32767).astype("<i2").tobytes())
+    return phones
