@@ -141,7 +141,7 @@ class FapRig:
             t = np.clip(t, 0.0, 1.0)
             return t * t * (3 - 2 * t)
 
-        past = smooth((np.abs(local[:, 0] - centre) - half) / (0.4 * half))
+        past = smooth((np.abs(local[:, 0] - centre) - 0.6 * half) / (0.8 * half))
         below = smooth((y_mouth - local[:, 1]) / (0.35 * frame.iod) + 0.5)
         inside = sides["mouth"].astype(float)
         ear_x = abs(frame.to_local(lm[[234, 454]])[:, 0]).mean()
