@@ -4,8 +4,8 @@ import shutil
 
 import numpy as np
 import pytest
-
 from conftest import DATA, need
+
 from faceanim.cli import main
 from faceanim.mpeg4.actions import Action, blend_actions, expression_faps, fap_set
 from faceanim.mpeg4.faps import FapError

@@ -365,6 +365,32 @@ def _cmd_fap_play(args) -> None:
     print(f"wrote {args.output} ({stream.n_frames} frames at {stream.fps:g} fps)")
 
 
+def _cmd_direct(args) -> None:
+    import tempfile
+
+    from .director import build_scene, load_script, mix_speech, scene_stream
+    from .mpeg4.deformation import FapRig
+    from .mpeg4.fapfile import write_fap
+    from .mpeg4.player import gltf_stream, render_stream
+
+    script = load_script(args.script)
+    face = args.face or script.get("face", "default")
+    mesh, lm = _face_and_landmarks(face, args.landmarks)
+    rig = FapRig.build(mesh, lm)
+    with tempfile.TemporaryDirectory() as tmp:
+        scene = build_scene(script, rig, Path(tmp))
+        stream = scene_stream(scene, Path(args.output).stem)
+        suffix = Path(args.output).suffix.lower()
+        if suffix == ".fap":
+            write_fap(args.output, stream)
+        elif suffix == ".glb":
+            gltf_stream(rig, stream, args.output)
+        else:
+            audio = mix_speech(scene, Path(tmp) / "track.wav")
+            render_stream(rig, stream, args.output, lm, size=args.size, audio=audio)
+    print(f"wrote {args.output} ({stream.n_frames} frames, {len(scene.actions)} actions, {scene.duration:.1f} s)")
+
+
 def _output_path(suffixes):
     def check(value: str) -> str:
         if Path(value).suffix.lower() not in suffixes:
@@ -511,6 +537,14 @@ def build_parser() -> argparse.ArgumentParser:
     fpl.add_argument("--size", type=int, default=512)
     fpl.add_argument("-o", "--output", required=True, type=_output_path([".mp4", ".glb"]))
     fpl.set_defaults(func=_cmd_fap_play)
+
+    di = sub.add_parser("direct", help="render a scene script (YAML or JSON): speech, expressions, head motion, blinks")
+    di.add_argument("script")
+    di.add_argument("--face", help="mesh (default: the script's 'face', else the embedded default face)")
+    di.add_argument("--landmarks", help="landmark JSON for the face instead of detection")
+    di.add_argument("--size", type=int, default=512)
+    di.add_argument("-o", "--output", required=True, type=_output_path([".mp4", ".glb", ".fap"]))
+    di.set_defaults(func=_cmd_direct)
     return p
 
 

@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..mesh import Mesh
 from .actions import Action, blend_actions
 from .deformation import FapRig
 from .faps import FapStream

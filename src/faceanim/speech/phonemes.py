@@ -168,7 +168,7 @@ def say_timed(text: str, wav_path, voice: str = "en-us", speed: int = 175) -> li
     exe = _espeak()
     dec = _decoder()
     pieces, phones, clock = [], [], 0.0
-    silence = lambda seconds: np.zeros(int(round(seconds * SAMPLE_RATE)))  # noqa: E731
+    silence = lambda seconds: np.zeros(int(round(seconds * SAMPLE_RATE)))
     with tempfile.TemporaryDirectory() as tmp:
         for token in tokens:
             if token in PAUSES:
