@@ -167,7 +167,14 @@ def mix_speech(scene: Scene, path: Path) -> Path | None:
     track = np.zeros(int(np.ceil(scene.duration * rate)) + rate)
     for start, wav in scene.speech:
         x, r = load_wav(wav)
-        a = int(round(start * rate))
+        if r != rate:
+            from math import gcd
+
+            from scipy.signal import resample_poly
+
+            g = gcd(r, rate)
+            x = resample_poly(x, rate // g, r // g)
+        a = round(start * rate)
         track[a:a + len(x)] += x[: max(0, len(track) - a)]
     with wave.open(str(path), "wb") as w:
         w.setnchannels(1)
