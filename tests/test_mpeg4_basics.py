@@ -151,6 +151,11 @@ def test_rotations_and_unsupported_faps(fap_rig, face):
     assert drop == pytest.approx(400 * fp.unit("MNS"), rel=0.02)
     _, e = face.kdtree.query(fp["3.1"])
     np.testing.assert_array_equal(v[1][e], face.vertices[e])
+    # values past the limits are clamped and reported
+    big = FapStream.empty(1)
+    big.set("raise_l_cornerlip", 10000)
+    assert any("clamped" in w for w in fap_rig.check(big))
+    np.testing.assert_allclose(fap_rig.evaluate(big)[0], face.vertices + 4096 * fap_rig.blendshape("raise_l_cornerlip"))
     # a face mask has no tongue: the FAP is reported and does nothing
     assert any("raise_tongue_tip" in w for w in fap_rig.check(s))
     np.testing.assert_array_equal(v[2], face.vertices)

@@ -84,6 +84,8 @@ def test_alignment_of_real_speech():
         align(wav, (SPEECH / "clip-0880.txt").read_text() * 8)  # far more words than the audio holds
     with pytest.raises(SpeechError, match="does not know"):
         align(wav, "zxqvbn wordz")
+    with pytest.raises(SpeechError, match="match"):
+        align(wav, (SPEECH / "clip-0930.txt").read_text())  # another clip's words
 
 
 @has_espeak

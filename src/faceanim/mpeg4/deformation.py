@@ -43,9 +43,17 @@ SIDE = {"2.2": ("mouth", False), "2.6": ("mouth", False), "2.7": ("mouth", False
 CHAINS = (("2.5", "2.7", "2.2", "2.6", "2.4"), ("2.5", "2.9", "2.3", "2.8", "2.4"),
           ("8.4", "8.6", "8.1", "8.5", "8.3"), ("8.4", "8.8", "8.2", "8.7", "8.3"),
           ("4.1", "4.3", "4.5"), ("4.2", "4.4", "4.6"))
+# values beyond these are clamped (and reported by check): past 4 FAPU a face folds over itself,
+# past half a turn a rotation means nothing new
+LIMIT_TRANSLATION = 4096.0
+LIMIT_ROTATION = 314159.0  # pi rad in AU
 JAW_FAPS = (3, 14, 15)
 HEAD_FAPS = (48, 49, 50)
 EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)
+
+
+def _limits() -> np.ndarray:
+    return np.array([LIMIT_ROTATION if f.is_rotation else LIMIT_TRANSLATION for f in faps()])
 
 
 def _falloff(d: np.ndarray, radius: float, plateau: float = PLATEAU) -> np.ndarray:
@@ -159,13 +167,22 @@ class FapRig:
         return max(float(gap), 0.0) / fp.unit("MNS")
 
     def check(self, stream: FapStream) -> list[str]:
-        """Warnings for FAPs the stream sets that this face cannot show."""
+        """Warnings: FAPs the stream sets that this face cannot show, values that will be clamped."""
         used = np.flatnonzero(stream.mask.any(axis=0)) + 1
-        return [f"FAP {n} ({faps()[n - 1].name}): {self.unsupported[n]}" for n in used if n in self.unsupported]
+        out = [f"FAP {n} ({faps()[n - 1].name}): {self.unsupported[n]}" for n in used if n in self.unsupported]
+        vals = np.where(stream.mask, stream.values, 0.0)
+        limits = _limits()
+        over = np.flatnonzero((np.abs(vals) > limits).any(axis=0))
+        for idx in over:
+            f = faps()[idx]
+            out.append(f"FAP {f.number} ({f.name}): values up to {np.abs(vals[:, idx]).max():g} are clamped to "
+                       f"+-{limits[idx]:g}")
+        return out
 
     def evaluate(self, stream: FapStream) -> np.ndarray:
         """Vertices (F, V, 3) for a FAP stream (values where the mask is set, 0 elsewhere)."""
-        vals = np.where(stream.mask, stream.values, 0.0)
+        limits = _limits()
+        vals = np.clip(np.where(stream.mask, stream.values, 0.0), -limits, limits)
         n_frames, v0 = len(vals), self.mesh.vertices
         frame = self.points.frame
         if self._bt is None:

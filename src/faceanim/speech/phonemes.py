@@ -125,8 +125,15 @@ def align(audio, transcript: str, rate: int | None = None, decoder=None) -> list
         for p in word:
             phones.append(Phone(p.name, p.start * FRAME, (p.start + p.duration) * FRAME,
                                 "" if word.name.startswith("<") else word.name))
-    if not phones or not any(p.phone != "SIL" for p in phones):
+    spoken = [p for p in phones if p.phone != "SIL"]
+    if not spoken:
         raise SpeechError("the audio could not be aligned with its transcript; does the audio match it?")
+    # a transcript forced onto audio that says something else squeezes most phones to the
+    # aligner's minimum of 3 frames
+    squeezed = np.mean([p.end - p.start <= 3.01 * FRAME for p in spoken])
+    if len(spoken) >= 8 and squeezed > 0.5:
+        raise SpeechError(f"{squeezed:.0%} of the phones got the shortest possible duration: the audio "
+                          "does not seem to match its transcript")
     return phones
 
 
