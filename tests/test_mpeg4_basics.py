@@ -159,3 +159,28 @@ def test_rotations_and_unsupported_faps(fap_rig, face):
     # a face mask has no tongue: the FAP is reported and does nothing
     assert any("raise_tongue_tip" in w for w in fap_rig.check(s))
     np.testing.assert_array_equal(v[2], face.vertices)
+
+
+def test_eyeballs_turn_on_a_head_that_has_them(fap_rig):
+    from conftest import ICT, need
+    from faceanim.landmarks import detect_landmarks
+    from faceanim.mesh import load_mesh
+    from faceanim.mpeg4.deformation import FapRig
+
+    assert 23 in fap_rig.unsupported  # the default face is a mask without eyeballs
+    head = load_mesh(need(ICT / "generic_neutral_mesh.obj"))
+    rig = FapRig.build(head, landmarks_478(head, detect_landmarks(head)))
+    assert rig.eyes["L"] is not None and rig.eyes["R"] is not None and 23 not in rig.unsupported
+    s = FapStream.empty(1)
+    s.set("yaw_l_eyeball", 20000)  # 0.2 rad to the face's left
+    v = rig.evaluate(s)[0]
+    rows, centre = rig.eyes["L"]
+    moved = np.zeros(head.n_vertices, dtype=bool)
+    moved[rows] = True
+    np.testing.assert_array_equal(v[~moved], head.vertices[~moved])
+    before = rig.points.frame.vectors_to_local(head.vertices[rows] - centre)
+    after = rig.points.frame.vectors_to_local(v[rows] - centre)
+    np.testing.assert_allclose(np.linalg.norm(after, axis=1), np.linalg.norm(before, axis=1), atol=1e-9)
+    front = before[:, 2].argmax()  # the front of the eye (the cornea) turns by 0.2 rad about y
+    turn = np.arctan2(after[front, 0], after[front, 2]) - np.arctan2(before[front, 0], before[front, 2])
+    assert turn == pytest.approx(0.2, abs=1e-6)

@@ -52,6 +52,38 @@ HEAD_FAPS = (48, 49, 50)
 EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)
 
 
+def _rot(axis: int, a: float) -> np.ndarray:
+    """Rotation by ``a`` radians about the x (0), y (1) or z (2) axis of the face frame."""
+    c, s = np.cos(a), np.sin(a)
+    if axis == 0:
+        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    if axis == 1:
+        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def _find_eyeballs(mesh: Mesh, fp: FeaturePoints, on_skin: np.ndarray) -> dict:
+    """Eyeballs modelled as separate parts: the round shells (not skin) around each pupil, turned
+    about the centre of the largest one. None for a face that has no eyeball there."""
+    labels = mesh.vertex_components
+    iod = fp.frame.iod
+    eyes = {}
+    for side, pupil in (("L", fp["3.5"]), ("R", fp["3.6"])):
+        rows, best, best_size = [], None, 0
+        for c in np.unique(labels[~on_skin]):
+            part = np.flatnonzero(labels == c)
+            centre = mesh.vertices[part].mean(0)
+            dist = np.linalg.norm(mesh.vertices[part] - centre, axis=1)
+            # an eyeball shell is round (sclera, cornea, iris): lashes and occlusion shells are not
+            round_ = len(part) >= 20 and dist.std() < 0.25 * dist.mean()
+            if round_ and np.linalg.norm(centre - pupil) < 0.35 * iod and dist.max() < 0.4 * iod:
+                rows.append(part)
+                if len(part) > best_size:
+                    best, best_size = centre, len(part)
+        eyes[side] = (np.concatenate(rows), best) if rows else None
+    return eyes
+
+
 def _limits() -> np.ndarray:
     return np.array([LIMIT_ROTATION if f.is_rotation else LIMIT_TRANSLATION for f in faps()])
 
@@ -86,6 +118,7 @@ class FapRig:
     unsupported: dict[int, str] = field(default_factory=dict)
     jaw_weight: np.ndarray = None
     jaw_pivot: np.ndarray = None
+    eyes: dict = field(default_factory=dict)  # 'L'/'R' -> (vertex rows, centre of rotation)
     _bt: sp.csr_matrix = field(default=None, repr=False)
     _jaw_rows: np.ndarray = field(default=None, repr=False)
     _jaw_rel: np.ndarray = field(default=None, repr=False)
@@ -96,6 +129,7 @@ class FapRig:
         frame = fp.frame
         on_skin = skin(mesh, lm478)
         sides = slit_sides(mesh, lm478, default_library())
+        eyes = _find_eyeballs(mesh, fp, on_skin)
         rows, cols, vals = [], [], []
         supported = np.zeros(N_FAPS, dtype=bool)
         unsupported: dict[int, str] = {}
@@ -111,7 +145,10 @@ class FapRig:
                 supported[n - 1] = True
                 continue
             if n in EYEBALL_FAPS or f.is_rotation:
-                unsupported[n] = "needs eyeballs or a tongue modelled as parts of the mesh"
+                if n in (23, 24, 25, 26) and eyes.get("L" if n in (23, 25) else "R") is not None:
+                    supported[n - 1] = True
+                else:
+                    unsupported[n] = "needs eyeballs (or a tongue) modelled as parts of the mesh"
                 continue
             missing = [p for p in f.feature_points if p in fp.missing]
             if missing:
@@ -157,7 +194,7 @@ class FapRig:
         jaw = ((1 - past) * inside + past * below) * fade_side * on_skin
         pivot_local = np.array([0.0, 0.0, frame.to_local(lm[[234, 454]])[:, 2].mean()])
         pivot = frame.origin + pivot_local @ frame.rotation
-        return cls(mesh, fp, shapes, supported, unsupported, jaw, pivot)
+        return cls(mesh, fp, shapes, supported, unsupported, jaw, pivot, eyes)
 
     @property
     def lip_gap(self) -> float:
@@ -207,6 +244,15 @@ class FapRig:
             moved = self.jaw_weight[rows, None] * (d @ frame.rotation)
             for j, k in enumerate(jaw_frames):
                 out[k, rows] += moved[j]
+        for side, (yaw_i, pitch_i) in (("L", (22, 24)), ("R", (23, 25))):
+            eye = self.eyes.get(side)
+            if eye is None:
+                continue
+            rows, centre = eye
+            for k in np.flatnonzero(np.abs(vals[:, [yaw_i, pitch_i]]).sum(1) > 0):
+                r = frame.rotation.T @ _rot(1, vals[k, yaw_i] * ANGLE_UNIT) @ _rot(0, vals[k, pitch_i] * ANGLE_UNIT) \
+                    @ frame.rotation
+                out[k, rows] = (out[k, rows] - centre) @ r.T + centre
         for k in np.flatnonzero(np.abs(vals[:, 47:50]).sum(1) > 0):
             pitch, yaw, roll = vals[k, 47:50] * ANGLE_UNIT
             out[k] = self._head(out[k], pitch, yaw, roll)
@@ -226,15 +272,7 @@ class FapRig:
     def _head(self, verts: np.ndarray, pitch: float, yaw: float, roll: float) -> np.ndarray:
         """Rotate the head about 7.1: pitch + nods down, yaw + turns to the face's left, roll + to its right."""
         frame = self.points.frame
-
-        def rot(axis, a):
-            c, s = np.cos(a), np.sin(a)
-            if axis == 0:
-                return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-            if axis == 1:
-                return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-            return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-
+        rot = _rot
         # face frame: x left, y up, z forward. A nod down (+pitch) about +x brings the gaze towards
         # -y; a turn to the face's left (+yaw) about +y brings it towards +x; a roll to the face's
         # right (+roll) about +z brings the top of the head towards -x
