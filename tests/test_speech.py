@@ -115,3 +115,16 @@ def test_fap_play_renders_a_video(tmp_path):
     reader = imageio_ffmpeg.read_frames(str(tmp_path / "a.mp4"))
     next(reader)
     assert sum(1 for _ in reader) == 6
+
+
+def test_fap_write(tmp_path, capsys):
+    from faceanim.mpeg4 import read_fap
+
+    out = tmp_path / "s.fap"
+    assert main(["fap", "write", "--expression", "surprise", "--fap", "head_yaw=5000", "--duration", "1",
+                 "-o", str(out)]) == 0
+    s = read_fap(out)
+    assert s.column("open_jaw").max() > 0 and s.column("head_yaw").max() == 5000
+    assert np.all(s.values == np.rint(s.values))  # whole FAPU units
+    assert main(["fap", "write", "--fap", "open_mouth=3", "-o", str(tmp_path / "x.fap")]) == 2
+    assert "unknown FAP" in capsys.readouterr().err and not (tmp_path / "x.fap").exists()

@@ -365,6 +365,37 @@ def _cmd_fap_play(args) -> None:
     print(f"wrote {args.output} ({stream.n_frames} frames at {stream.fps:g} fps)")
 
 
+def _cmd_fap_write(args) -> None:
+    import tempfile
+    from types import SimpleNamespace
+
+    from .director import build_scene, scene_stream
+    from .mpeg4.fapfile import write_fap
+
+    events = []
+    if args.expression:
+        events.append({"expression": args.expression, "at": 0.0, "duration": args.duration,
+                       "intensity": args.intensity, "envelope": args.envelope})
+    if args.fap:
+        faps = {}
+        for item in args.fap:
+            if "=" not in item:
+                raise FaceAnimError(f"--fap takes NAME=VALUE (e.g. open_jaw=300), got '{item}'")
+            k, v = item.split("=", 1)
+            faps[k] = v
+        events.append({"faps": faps, "at": 0.0, "duration": args.duration, "envelope": args.envelope})
+    if args.say:
+        events.append({"say": args.say, "at": 0.2})
+    if not events:
+        raise FaceAnimError("give --expression, --fap NAME=VALUE and/or --say TEXT")
+    with tempfile.TemporaryDirectory() as tmp:
+        # MPEG-4's neutral face has closed lips: no gap to close
+        scene = build_scene({"fps": args.fps, "events": events}, SimpleNamespace(lip_gap=0.0), Path(tmp))
+        stream = scene_stream(scene, Path(args.output).stem)
+        write_fap(args.output, stream)
+    print(f"wrote {args.output} ({stream.n_frames} frames at {stream.fps:g} fps)")
+
+
 def _cmd_direct(args) -> None:
     import tempfile
 
@@ -537,6 +568,16 @@ def build_parser() -> argparse.ArgumentParser:
     fpl.add_argument("--size", type=int, default=512)
     fpl.add_argument("-o", "--output", required=True, type=_output_path([".mp4", ".glb"]))
     fpl.set_defaults(func=_cmd_fap_play)
+    fw = fsub.add_parser("write", help="write a .fap file from an expression, FAP values or text")
+    fw.add_argument("-o", "--output", required=True, type=_output_path([".fap"]))
+    fw.add_argument("--expression", help="joy, sadness, anger, fear, disgust or surprise")
+    fw.add_argument("--fap", action="append", metavar="NAME=VALUE", help="a FAP value (FAPU units), repeatable")
+    fw.add_argument("--say", metavar="TEXT", help="lip-sync visemes for the text (synthesized and aligned)")
+    fw.add_argument("--duration", type=float, default=2.0, help="seconds of --expression / --fap")
+    fw.add_argument("--intensity", type=float, default=1.0)
+    fw.add_argument("--envelope", default="smooth", choices=["linear", "smooth", "peak"])
+    fw.add_argument("--fps", type=float, default=25.0)
+    fw.set_defaults(func=_cmd_fap_write)
 
     di = sub.add_parser("direct", help="render a scene script (YAML or JSON): speech, expressions, head motion, blinks")
     di.add_argument("script")

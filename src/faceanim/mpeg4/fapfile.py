@@ -9,7 +9,8 @@
 FAP 1 (viseme) contributes 4 numbers and FAP 2 (expression) 6 to a value line when set; every
 other FAP one integer. The reader takes real-world files: comments and blank lines anywhere,
 trailing spaces, Windows line ends, a name with spaces (a path), frames that set only some FAPs.
-A malformed file is refused with its line number. Writing then reading gives the same stream.
+A malformed file is refused with its line number. Values are written as whole FAPU units, as the
+format has them; writing then reading a stream of whole values gives the same stream.
 """
 
 from __future__ import annotations
@@ -111,8 +112,9 @@ def _fmt(x: float) -> str:
     return str(int(x)) if float(x).is_integer() else repr(float(x))
 
 
-def format_fap(stream: FapStream) -> str:
-    """The text of an ASCII .fap file for ``stream``."""
+def format_fap(stream: FapStream, integers: bool = True) -> str:
+    """The text of an ASCII .fap file for ``stream``: FAP values rounded to whole FAPU units as
+    the format has them (``integers=False`` keeps fractions, which only faceanim reads back)."""
     name = stream.name.strip() or "faceanim"
     out = [f"{VERSION} {name} {_fmt(stream.fps)} {stream.n_frames}"]
     for k in range(stream.n_frames):
@@ -123,13 +125,14 @@ def format_fap(stream: FapStream) -> str:
             nums += [str(int(x)) for x in stream.viseme[k]]
         if m[1]:
             nums += [str(int(x)) for x in stream.expression[k]]
-        nums += [_fmt(x) for x in stream.values[k, np.flatnonzero(m[2:]) + 2]]
+        values = stream.values[k, np.flatnonzero(m[2:]) + 2]
+        nums += [_fmt(x) for x in (np.rint(values) if integers else values)]
         out.append(" ".join(nums))
     return "\n".join(out) + "\n"
 
 
-def write_fap(path: str | os.PathLike, stream: FapStream) -> Path:
-    """Write ``stream`` as an ASCII .fap file (atomically)."""
+def write_fap(path: str | os.PathLike, stream: FapStream, integers: bool = True) -> Path:
+    """Write ``stream`` as an ASCII .fap file (atomically); see :func:`format_fap`."""
     with atomic_output(path) as tmp:
-        Path(tmp).write_text(format_fap(stream), encoding="utf-8")
+        Path(tmp).write_text(format_fap(stream, integers), encoding="utf-8")
     return Path(path)
