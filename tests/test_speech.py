@@ -1,6 +1,8 @@
 """Actions, visemes and speech: the blending formula, co-articulation, alignment, synthesis, say."""
 
+import json
 import shutil
+import subprocess
 
 import numpy as np
 import pytest
@@ -128,3 +130,22 @@ def test_fap_write(tmp_path, capsys):
     assert np.all(s.values == np.rint(s.values))  # whole FAPU units
     assert main(["fap", "write", "--fap", "open_mouth=3", "-o", str(tmp_path / "x.fap")]) == 2
     assert "unknown FAP" in capsys.readouterr().err and not (tmp_path / "x.fap").exists()
+
+
+def test_say_with_recorded_speech_and_a_valid_glb(tmp_path):
+    import imageio_ffmpeg
+
+    from conftest import ROOT
+
+    wav = need(SPEECH / "clip-0880.wav")
+    out = tmp_path / "clip.mp4"
+    assert main(["say", "--audio", str(wav), "--transcript", str(SPEECH / "clip-0880.txt"), "--size", "96",
+                 "-o", str(out)]) == 0
+    info = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-i", str(out)], capture_output=True, text=True).stderr
+    assert "Audio:" in info and "Video:" in info
+    glb = tmp_path / "clip.glb"
+    assert main(["say", "--audio", str(wav), "--transcript", str(SPEECH / "clip-0880.txt"), "-o", str(glb)]) == 0
+    validator = ROOT / "tools" / "validate_gltf.js"
+    if shutil.which("node") and (ROOT / "tools" / "node_modules" / "gltf-validator").exists():
+        report = json.loads(subprocess.run(["node", str(validator), str(glb)], capture_output=True, text=True).stdout)
+        assert report["numErrors"] == 0
