@@ -166,6 +166,7 @@ def test_rotations_and_unsupported_faps(fap_rig, face):
 
 def test_eyeballs_turn_on_a_head_that_has_them(fap_rig):
     from conftest import ICT, need
+
     from faceanim.landmarks import detect_landmarks
     from faceanim.mesh import load_mesh
     from faceanim.mpeg4.deformation import FapRig

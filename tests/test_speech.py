@@ -134,7 +134,6 @@ def test_fap_write(tmp_path, capsys):
 
 def test_say_with_recorded_speech_and_a_valid_glb(tmp_path):
     import imageio_ffmpeg
-
     from conftest import ROOT
 
     wav = need(SPEECH / "clip-0880.wav")
