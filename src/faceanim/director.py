@@ -157,28 +157,14 @@ def scene_stream(scene: Scene, name: str = "scene") -> FapStream:
 
 def mix_speech(scene: Scene, path: Path) -> Path | None:
     """One 16 kHz WAV with every speech event at its place on the timeline."""
-    import wave
-
-    from .speech import load_wav
+    from .speech.phonemes import SAMPLE_RATE, load_wav, resample, write_wav
 
     if not scene.speech:
         return None
-    rate = 16000
-    track = np.zeros(int(np.ceil(scene.duration * rate)) + rate)
+    track = np.zeros(int(np.ceil(scene.duration * SAMPLE_RATE)) + SAMPLE_RATE)
     for start, wav in scene.speech:
-        x, r = load_wav(wav)
-        if r != rate:
-            from math import gcd
-
-            from scipy.signal import resample_poly
-
-            g = gcd(r, rate)
-            x = resample_poly(x, rate // g, r // g)
-        a = round(start * rate)
+        x, rate = load_wav(wav)
+        x = resample(x, rate)
+        a = round(start * SAMPLE_RATE)
         track[a:a + len(x)] += x[: max(0, len(track) - a)]
-    with wave.open(str(path), "wb") as w:
-        w.setnchannels(1)
-        w.setsampwidth(2)
-        w.setframerate(rate)
-        w.writeframes((np.clip(track, -1, 1) * 32767).astype("<i2").tobytes())
-    return path
+    return write_wav(path, track)

@@ -70,15 +70,35 @@ def load_wav(path) -> tuple[np.ndarray, int]:
     return x, rate
 
 
-def _to_16k(x: np.ndarray, rate: int) -> bytes:
-    if rate != SAMPLE_RATE:
-        from math import gcd
+def resample(x: np.ndarray, rate: int, to: int = SAMPLE_RATE) -> np.ndarray:
+    """Samples at ``rate`` resampled to ``to`` (polyphase filter)."""
+    if rate == to:
+        return np.asarray(x, dtype=np.float64)
+    from math import gcd
 
-        from scipy.signal import resample_poly
+    from scipy.signal import resample_poly
 
-        g = gcd(rate, SAMPLE_RATE)
-        x = resample_poly(x, SAMPLE_RATE // g, rate // g)
+    g = gcd(rate, to)
+    return resample_poly(x, to // g, rate // g)
+
+
+def _pcm16(x: np.ndarray) -> bytes:
     return (np.clip(x, -1, 1) * 32767).astype("<i2").tobytes()
+
+
+def _to_16k(x: np.ndarray, rate: int) -> bytes:
+    return _pcm16(resample(x, rate))
+
+
+def write_wav(path, samples: np.ndarray, rate: int = SAMPLE_RATE) -> Path:
+    """Mono float samples in [-1, 1] as a 16-bit PCM WAV file."""
+    out = Path(path)
+    with wave.open(str(out), "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(rate)
+        w.writeframes(_pcm16(samples))
+    return out
 
 
 def _decoder():
@@ -209,11 +229,5 @@ def say_timed(text: str, wav_path, voice: str = "en-us", speed: int = 175) -> li
             clock += len(x) / SAMPLE_RATE
             pieces.append(silence(WORD_GAP))
             clock += WORD_GAP
-    audio = np.concatenate(pieces)
-    out = Path(wav_path)
-    with wave.open(str(out), "wb") as w:
-        w.setnchannels(1)
-        w.setsampwidth(2)
-        w.setframerate(SAMPLE_RATE)
-        w.writeframes((np.clip(audio, -1, 1) * 32767).astype("<i2").tobytes())
+    write_wav(wav_path, np.concatenate(pieces))
     return phones
