@@ -28,7 +28,7 @@ from .fdp import FeaturePoints, feature_points
 
 # influence radius of a FAP's feature point by FAP group: (factor, FAPU); within PLATEAU of the
 # radius the weight is 1 (a lid or brow moves as a piece), then it falls off as a raised cosine
-RADIUS = {2: (0.45, "MW"), 3: (0.3, "ES"), 4: (0.35, "ES"), 5: (0.35, "ES"), 8: (0.45, "MW"),
+RADIUS = {2: (0.45, "MW"), 3: (0.4, "ES"), 4: (0.35, "ES"), 5: (0.35, "ES"), 8: (0.45, "MW"),
           9: (0.25, "ES"), 10: (0.25, "ES")}
 PLATEAU = 0.3
 # feature points on one side of a slit: (slit, lower side?)
@@ -47,6 +47,11 @@ CHAINS = (("2.5", "2.7", "2.2", "2.6", "2.4"), ("2.5", "2.9", "2.3", "2.8", "2.4
 # past half a turn a rotation means nothing new
 LIMIT_TRANSLATION = 4096.0
 LIMIT_ROTATION = 314159.0  # pi rad in AU
+# eyelid feature points: (brow above the eye, inner and outer eye corners). A lid moves as a
+# band along the eye (full between the corners' mid-height, fading out past the corners) and
+# not up into the brow
+LIDS = {"3.1": ("4.3", "3.11", "3.7"), "3.3": ("4.3", "3.11", "3.7"),
+        "3.2": ("4.4", "3.8", "3.12"), "3.4": ("4.4", "3.8", "3.12")}
 JAW_FAPS = (3, 14, 15)
 HEAD_FAPS = (48, 49, 50)
 EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)
@@ -92,6 +97,23 @@ def _falloff(d: np.ndarray, radius: float, plateau: float = PLATEAU) -> np.ndarr
     """1 within ``plateau`` * radius, then a raised cosine to 0 at the radius."""
     t = np.clip((d / radius - plateau) / (1.0 - plateau), 0.0, 1.0)
     return 0.5 * (1.0 + np.cos(np.pi * t))
+
+
+def _lid_band(mesh: Mesh, fp: FeaturePoints, lid: str, refs: tuple[str, str, str]) -> np.ndarray:
+    """Weight (V,) of the skin an eyelid FAP may move: along the eye between its corners, from
+    the lid up to halfway to the brow (upper lids) or as far below (lower lids)."""
+    frame = fp.frame
+    local = frame.to_local(mesh.vertices)
+    brow, inner, outer = (frame.to_local(fp[r]) for r in refs)
+    centre = frame.to_local(fp[lid])
+    half = abs(outer[0] - inner[0]) / 2
+    mid_x = (outer[0] + inner[0]) / 2
+    t = np.clip((np.abs(local[:, 0] - mid_x) - 0.8 * half) / (0.5 * half), 0.0, 1.0)
+    along = 1 - t * t * (3 - 2 * t)
+    reach = 0.5 * abs(brow[1] - centre[1])
+    v = np.clip(np.abs(local[:, 1] - centre[1]) / reach, 0.0, 1.0)
+    across = 1 - v * v * (3 - 2 * v)
+    return along * across
 
 
 def _chain_gaps(fp: FeaturePoints) -> dict[str, float]:
@@ -165,6 +187,8 @@ class FapRig:
                 if p in SIDE:
                     slit, lower = SIDE[p]
                     w = w * (sides[slit] == lower)
+                if p in LIDS:
+                    w = w * _lid_band(mesh, fp, p, LIDS[p])
                 idx = np.flatnonzero(w > 1e-6)
                 for axis in range(3):
                     rows.append(np.full(len(idx), n - 1))
