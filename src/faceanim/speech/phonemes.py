@@ -195,7 +195,10 @@ def say_timed(text: str, wav_path, voice: str = "en-us", speed: int = 175) -> li
     exe = _espeak()
     dec = _decoder()
     pieces, phones, clock = [], [], 0.0
-    silence = lambda seconds: np.zeros(int(round(seconds * SAMPLE_RATE)))
+
+    def silence(seconds: float) -> np.ndarray:
+        return np.zeros(round(seconds * SAMPLE_RATE))
+
     with tempfile.TemporaryDirectory() as tmp:
         for token in tokens:
             if token in PAUSES:
@@ -213,7 +216,7 @@ def say_timed(text: str, wav_path, voice: str = "en-us", speed: int = 175) -> li
             if result.returncode != 0:
                 raise SpeechError(f"espeak-ng failed on '{token}': {result.stderr.strip()}")
             x, rate = load_wav(path)
-            x = np.frombuffer(_to_16k(x, rate), dtype="<i2").astype(np.float64) / 32768.0
+            x = resample(x, rate)
             loud = np.flatnonzero(np.abs(x) > 0.02)
             x = x[max(loud[0] - 160, 0):loud[-1] + 160] if len(loud) else x
             try:
