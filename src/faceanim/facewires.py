@@ -27,7 +27,7 @@ from .deform.wires import (
     extract_wires,
 )
 from .errors import DeformError, InputFileError
-from .facs import face_frame
+from .facs import face_frame, past_corners, smoothstep
 from .fileio import read_json, write_json
 from .mesh import Mesh
 
@@ -36,7 +36,7 @@ BLENDING_FUNCTIONS = {
     "sqrt": np.sqrt,
     "cubic": lambda t: t ** 3,
     "square": lambda t: t ** 2,
-    "smooth": lambda t: t * t * (3 - 2 * t),
+    "smooth": lambda t: smoothstep(t),
 }
 
 
@@ -95,10 +95,8 @@ class WireSet:
                     continue
                 # the side matters between the slit's corners; beyond them both wires act, faded
                 # in over a fifth of the slit's width, so the skin past the corners has no seam
-                ca, cb = frame.to_local(np.asarray(lm478)[list(library.slits[side[0]]["corners"])])[:, 0]
-                centre, half = (ca + cb) / 2, abs(cb - ca) / 2
-                t = np.clip((np.abs(x - centre) - half) / (0.4 * half), 0.0, 1.0)
-                beyond = t * t * (3 - 2 * t)
+                corner_x = frame.to_local(np.asarray(lm478)[list(library.slits[side[0]]["corners"])])[:, 0]
+                beyond = past_corners(x, corner_x, 1.0, 0.4)
                 own = lower[side[0]] == (side[1] == "lower")
                 masks.append(np.where(own, 1.0, beyond))
         return bind_wires(v, self.wires, self.k, masks)

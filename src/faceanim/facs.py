@@ -345,9 +345,21 @@ def region_weights(vertices: np.ndarray, lm478: np.ndarray, library: ActionUnitL
         if (full - zero) * (1 if region == "upper" else -1) <= 0:
             raise LandmarkError("the eye, nose and mouth landmarks are not in top-to-bottom order: "
                                 "the face is upside down or the landmarks are out of order")
-        t = np.clip((y - zero) / (full - zero), 0.0, 1.0)
-        out[region] = t * t * (3 - 2 * t)
+        out[region] = smoothstep((y - zero) / (full - zero))
     return out
+
+
+def smoothstep(t) -> np.ndarray:
+    """3t^2 - 2t^3 of ``t`` clipped to [0, 1]: the smooth 0 -> 1 ramp every mask here uses."""
+    t = np.clip(np.asarray(t, dtype=np.float64), 0.0, 1.0)
+    return t * t * (3 - 2 * t)
+
+
+def past_corners(x_local: np.ndarray, corner_x: np.ndarray, start: float, width: float) -> np.ndarray:
+    """How far (0..1, smooth) points lie past a slit's corners along the face's x axis: 0 within
+    ``start`` half-widths of the slit's centre, 1 beyond ``start + width`` half-widths."""
+    centre, half = (corner_x[0] + corner_x[1]) / 2, abs(corner_x[1] - corner_x[0]) / 2
+    return smoothstep((np.abs(x_local - centre) - start * half) / (width * half))
 
 
 def _named_point(lm478, library, name) -> np.ndarray:

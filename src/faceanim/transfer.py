@@ -235,12 +235,11 @@ class ExpressionTransfer:
         # evaluated on the face; beyond the face outline the warp fades out over the margin of
         # the free region instead of extrapolating (the thesis' faces were cropped there)
         from .deform.base import LinearDeformer
-        from .facs import _graph_distance, face_region
+        from .facs import _graph_distance, face_region, smoothstep
 
         face = face_region(self.mesh, self.lm, self.frame)
         dist = _graph_distance(self.mesh, np.flatnonzero(face), limit=FREE_MARGIN * self.frame.iod)
-        t = np.clip(1.0 - dist / (FREE_MARGIN * self.frame.iod), 0.0, 1.0)
-        fade = np.where(np.isfinite(dist), t * t * (3 - 2 * t), 0.0)
+        fade = np.where(np.isfinite(dist), smoothstep(1.0 - dist / (FREE_MARGIN * self.frame.iod)), 0.0)
         rows = np.flatnonzero(self.free & (fade > 0))
         self._operators = {}
         for r, sel in self._regions.items():

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from ..facs import _graph_distance, default_library, skin, slit_sides
+from ..facs import _graph_distance, default_library, past_corners, skin, slit_sides, smoothstep
 from ..mesh import Mesh
 from .faps import ANGLE_UNIT, N_FAPS, FapError, FapStream, direction_vector, faps
 from .fdp import FeaturePoints, feature_points
@@ -106,13 +106,8 @@ def _lid_band(mesh: Mesh, fp: FeaturePoints, lid: str, refs: tuple[str, str, str
     local = frame.to_local(mesh.vertices)
     brow, inner, outer = (frame.to_local(fp[r]) for r in refs)
     centre = frame.to_local(fp[lid])
-    half = abs(outer[0] - inner[0]) / 2
-    mid_x = (outer[0] + inner[0]) / 2
-    t = np.clip((np.abs(local[:, 0] - mid_x) - 0.8 * half) / (0.5 * half), 0.0, 1.0)
-    along = 1 - t * t * (3 - 2 * t)
-    reach = 0.5 * abs(brow[1] - centre[1])
-    v = np.clip(np.abs(local[:, 1] - centre[1]) / reach, 0.0, 1.0)
-    across = 1 - v * v * (3 - 2 * v)
+    along = 1 - past_corners(local[:, 0], np.array([inner[0], outer[0]]), 0.8, 0.5)
+    across = 1 - smoothstep(np.abs(local[:, 1] - centre[1]) / (0.5 * abs(brow[1] - centre[1])))
     return along * across
 
 
@@ -203,15 +198,9 @@ class FapRig:
         local = frame.to_local(mesh.vertices)
         lm = np.asarray(lm478)
         corners = frame.to_local(lm[[61, 291]])
-        y_mouth, centre = corners[:, 1].mean(), corners[:, 0].mean()
-        half = abs(corners[1, 0] - corners[0, 0]) / 2
-
-        def smooth(t):
-            t = np.clip(t, 0.0, 1.0)
-            return t * t * (3 - 2 * t)
-
-        past = smooth((np.abs(local[:, 0] - centre) - 0.6 * half) / (0.8 * half))
-        below = smooth((y_mouth - local[:, 1]) / (0.35 * frame.iod) + 0.5)
+        y_mouth = corners[:, 1].mean()
+        past = past_corners(local[:, 0], corners[:, 0], 0.6, 0.8)
+        below = smoothstep((y_mouth - local[:, 1]) / (0.35 * frame.iod) + 0.5)
         inside = sides["mouth"].astype(float)
         ear_x = abs(frame.to_local(lm[[234, 454]])[:, 0]).mean()
         fade_side = np.clip((ear_x - np.abs(local[:, 0])) / (0.35 * frame.iod), 0.0, 1.0)
