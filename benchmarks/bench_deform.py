@@ -23,14 +23,14 @@ from trimesh.remesh import subdivide_loop
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from faceanim.default_face import default_face
 from faceanim.deform import (
     GeometryDeformationElement,
     bind_element,
     bind_gdes,
     bind_rbf,
 )
-from faceanim.mesh import Mesh
+from faceanim.face.default import default_face
+from faceanim.face.mesh import Mesh
 
 
 def best(fn, repeat=7, number=1, warmup=0.05):

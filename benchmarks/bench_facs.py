@@ -11,9 +11,9 @@ import time
 
 import numpy as np
 
-from faceanim.default_face import default_face, default_landmarks
-from faceanim.facs import landmarks_478
-from faceanim.transfer import ExpressionTransfer, default_model
+from faceanim.face.default import default_face, default_landmarks
+from faceanim.face.face import landmarks_478
+from faceanim.rig.transfer import ExpressionTransfer, default_model
 
 
 def best(f, n=3):

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from faceanim.default_face import default_face, default_landmarks
-from faceanim.facs import landmarks_478
-from faceanim.mpeg4 import FapStream
-from faceanim.mpeg4.deformation import FapRig
-from faceanim.mpeg4.player import speech_stream
-from faceanim.speech import align, say_timed
+from faceanim.drivers.mpeg4 import FapStream
+from faceanim.drivers.speech import align, say_timed
+from faceanim.face.default import default_face, default_landmarks
+from faceanim.face.face import landmarks_478
+from faceanim.player import speech_stream
+from faceanim.rig.mpeg4 import FapRig
 
 
 def main():

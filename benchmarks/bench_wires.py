@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 
-from faceanim.default_face import default_face, default_landmarks
 from faceanim.deform.wires import bind_wires, extract_wires
-from faceanim.facewires import default_wires
-from faceanim.facs import landmarks_478
+from faceanim.face.default import default_face, default_landmarks
+from faceanim.face.face import landmarks_478
+from faceanim.rig.wires import default_wires
 
 
 def best(fn, repeat=5):
@@ -56,9 +56,9 @@ def main():
     if len(sys.argv) > 1:
         from pathlib import Path
 
-        from faceanim.facewires import align_template
-        from faceanim.landmarks import detect_landmarks
-        from faceanim.mesh import load_mesh
+        from faceanim.face.landmarks import detect_landmarks
+        from faceanim.io.meshio import load_mesh
+        from faceanim.rig.wires import align_template
 
         data = Path(sys.argv[1])
         base = load_mesh(data / "pose_0.obj")

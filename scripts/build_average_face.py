@@ -10,11 +10,11 @@ src/faceanim/assets/average_face.npz and a render next to it for a look (not com
 import argparse
 from pathlib import Path
 
-from faceanim.default_face import default_face, default_landmarks
-from faceanim.facs import landmarks_478
-from faceanim.landmarks import detect_landmarks
-from faceanim.mesh import load_mesh
-from faceanim.preprocess import DEFAULT_GRID, build_average_face
+from faceanim.build.preprocess import DEFAULT_GRID, build_average_face
+from faceanim.face.default import default_face, default_landmarks
+from faceanim.face.face import landmarks_478
+from faceanim.face.landmarks import detect_landmarks
+from faceanim.io.meshio import load_mesh
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -24,7 +24,7 @@ from scipy.spatial import Delaunay
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from faceanim.landmarks import detect_landmarks_in_image
+from faceanim.face.landmarks import detect_landmarks_in_image
 
 ASSETS = ROOT / "src" / "faceanim" / "assets"
 

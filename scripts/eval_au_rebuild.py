@@ -21,19 +21,16 @@ import numpy as np
 
 from faceanim.deform.rbf import RadialBasis
 from faceanim.deform.surface import bind_surface
-from faceanim.facs import (
-    default_library,
-    face_frame,
-    face_region,
-    landmarks_478,
-)
-from faceanim.landmarks import BASIC22, detect_landmarks
-from faceanim.mesh import load_mesh
-from faceanim.transfer import (
+from faceanim.face.face import landmarks_478
+from faceanim.face.frame import face_frame, rigid_align
+from faceanim.face.landmarks import BASIC22, detect_landmarks
+from faceanim.face.regions import face_region
+from faceanim.io.meshio import load_mesh
+from faceanim.rig.facs import default_library
+from faceanim.rig.transfer import (
     ExpressionTransfer,
     learn_expression,
     points_on_landmarks,
-    rigid_align,
     skull_vertices,
 )
 

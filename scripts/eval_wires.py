@@ -18,10 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.deform.wires import extract_wires
-from faceanim.facewires import align_template, default_wires
-from faceanim.facs import face_region, landmarks_478
-from faceanim.landmarks import detect_landmarks
-from faceanim.mesh import load_mesh
+from faceanim.face.face import landmarks_478
+from faceanim.face.landmarks import detect_landmarks
+from faceanim.face.regions import face_region
+from faceanim.io.meshio import load_mesh
+from faceanim.rig.wires import align_template, default_wires
 
 
 def main(argv=None):

@@ -13,11 +13,12 @@ import argparse
 import sys
 from pathlib import Path
 
-from faceanim.facs import default_library, landmarks_478
-from faceanim.fileio import write_json
-from faceanim.landmarks import detect_landmarks
-from faceanim.mesh import load_mesh
-from faceanim.transfer import ActionUnitModel, learn_expression
+from faceanim.face.face import landmarks_478
+from faceanim.face.landmarks import detect_landmarks
+from faceanim.io.files import write_json
+from faceanim.io.meshio import load_mesh
+from faceanim.rig.facs import default_library
+from faceanim.rig.transfer import ActionUnitModel, learn_expression
 
 # FaceWarehouse's 19 expressions (pose_1..pose_19) and the AUs each one shows
 FACEWAREHOUSE_EXPRESSIONS = {

@@ -12,12 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from faceanim.default_face import default_face, default_landmarks
-from faceanim.facs import default_library, landmarks_478
-from faceanim.landmarks import detect_landmarks
-from faceanim.mesh import load_mesh
+from faceanim.face.default import default_face, default_landmarks
+from faceanim.face.face import landmarks_478
+from faceanim.face.landmarks import detect_landmarks
+from faceanim.io.meshio import load_mesh
 from faceanim.render import OffscreenRenderer, save_png
-from faceanim.transfer import ExpressionTransfer, learn_expression
+from faceanim.rig.facs import default_library
+from faceanim.rig.transfer import ExpressionTransfer, learn_expression
 
 ROWS = ((2, "smile"), (3, "brow lower"), (1, "mouth stretch"), (4, "brow raise"), (19, "eyes closed"), (13, "lip pucker"))
 
@@ -43,7 +44,7 @@ def main(argv=None):
     rigs = [ExpressionTransfer(m, lm, lib) for _, m, lm in targets]
     views = []
     for (_, m, lm) in targets:
-        from faceanim.facs import FACE_OVAL
+        from faceanim.face.landmarks import FACE_OVAL
 
         views.append(OffscreenRenderer(m, size=(args.size, args.size), yaw=12, pitch=3,
                                        frame_vertices=np.asarray(lm)[list(FACE_OVAL)]))

@@ -13,16 +13,17 @@ from pathlib import Path
 
 import numpy as np
 
-from faceanim.default_face import default_face, default_landmarks
-from faceanim.facewires import (
+from faceanim.face.default import default_face, default_landmarks
+from faceanim.face.face import landmarks_478
+from faceanim.face.landmarks import FACE_OVAL
+from faceanim.render import save_png
+from faceanim.rig.wires import (
     align_template,
     blend,
     default_wires,
     extract_template,
     render_wires,
 )
-from faceanim.facs import FACE_OVAL, landmarks_478
-from faceanim.render import save_png
 
 
 def main(argv=None):
@@ -37,8 +38,8 @@ def main(argv=None):
     print(f"wrote {args.out / 'wires.png'}")
     if args.data is None:
         return
-    from faceanim.landmarks import detect_landmarks
-    from faceanim.mesh import load_mesh
+    from faceanim.face.landmarks import detect_landmarks
+    from faceanim.io.meshio import load_mesh
 
     fw = args.data / "facewarehouse-tester1"
     base = load_mesh(fw / "pose_0.obj")

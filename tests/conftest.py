@@ -21,21 +21,21 @@ def need(path: Path) -> Path:
 
 @pytest.fixture(scope="session")
 def face():
-    from faceanim.default_face import default_face
+    from faceanim.face.default import default_face
 
     return default_face()
 
 
 @pytest.fixture(scope="session")
 def base_face():
-    from faceanim.default_face import default_face
+    from faceanim.face.default import default_face
 
     return default_face(dense=False)
 
 
 @pytest.fixture(scope="session")
 def face_landmarks(face):
-    from faceanim.default_face import default_landmarks
+    from faceanim.face.default import default_landmarks
 
     return default_landmarks(face)
 

@@ -9,7 +9,7 @@ import pytest
 
 from faceanim.cli import main
 from faceanim.deform import bind_rbf
-from faceanim.mesh import load_mesh, save_mesh
+from faceanim.io.meshio import load_mesh, save_mesh
 
 
 @pytest.fixture
@@ -100,7 +100,7 @@ def test_console_script_runs():
 
 
 def test_deform_gde_from_a_2d_pick(tmp_path, mesh_file, base_face):
-    from faceanim.landmarks import detection_view
+    from faceanim.face.landmarks import detection_view
 
     with detection_view(base_face) as view:
         xy = view.project(base_face.vertices[[152]])[0]

@@ -7,10 +7,10 @@ import pytest
 from conftest import FACEWAREHOUSE, need
 
 from faceanim.cli import main
-from faceanim.facs import landmarks_478
-from faceanim.landmarks import BASIC22, Landmarks
-from faceanim.mesh import load_mesh, save_mesh
-from faceanim.transfer import ExpressionTransfer, default_model
+from faceanim.face.face import landmarks_478
+from faceanim.face.landmarks import BASIC22, Landmarks
+from faceanim.io.meshio import load_mesh, save_mesh
+from faceanim.rig.transfer import ExpressionTransfer, default_model
 
 
 @pytest.fixture

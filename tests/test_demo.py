@@ -34,7 +34,7 @@ def test_demo_writes_glb_mp4_and_pngs(tmp_path, capsys):
 
 
 def test_render_command(tmp_path, base_face):
-    from faceanim.mesh import save_mesh
+    from faceanim.io.meshio import save_mesh
 
     save_mesh(base_face, tmp_path / "f.obj")
     assert main(["render", str(tmp_path / "f.obj"), "-o", str(tmp_path / "f.png"), "--size", "96"]) == 0

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from faceanim.cli import main
-from faceanim.director import build_scene, load_script, scene_stream
+from faceanim.drivers.director import build_scene, load_script, scene_stream
 from faceanim.errors import InputFileError
 
 
@@ -56,7 +56,7 @@ def test_bad_scripts(tmp_path, data, message):
 
 @pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="espeak-ng is not installed (scripts/setup.sh installs it)")
 def test_direct_command_with_speech(tmp_path):
-    from faceanim.mpeg4 import read_fap
+    from faceanim.io.fapfile import read_fap
 
     path = _script(tmp_path, {"events": [{"say": "hello there", "at": 0.5}, {"expression": "joy", "duration": 2}]})
     out = tmp_path / "scene.fap"

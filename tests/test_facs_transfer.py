@@ -3,18 +3,14 @@ import pytest
 from conftest import FACEWAREHOUSE, need
 from scipy.interpolate import RBFInterpolator
 
+from faceanim.deform.rbf import landmark_tps
 from faceanim.deform.surface import bind_surface, cotangent_laplacian
 from faceanim.errors import FaceAnimError, LandmarkError
-from faceanim.facs import (
-    ActionUnitError,
-    default_library,
-    face_region,
-    landmark_tps,
-    landmarks_478,
-    region_weights,
-)
-from faceanim.mesh import Mesh
-from faceanim.transfer import ExpressionTransfer, default_model
+from faceanim.face.face import landmarks_478
+from faceanim.face.mesh import Mesh
+from faceanim.face.regions import face_region
+from faceanim.rig.facs import ActionUnitError, default_library, region_weights
+from faceanim.rig.transfer import ExpressionTransfer, default_model
 
 
 def grid_mesh(n=21):
@@ -116,9 +112,10 @@ def test_magnitude_scales_linearly(transfer):
 
 def test_rebuild_real_expression_beats_landmark_tps():
     """The thesis' test on a real scan pair: smile (pose_2) rebuilt from 60 control points."""
-    from faceanim.landmarks import detect_landmarks
-    from faceanim.mesh import load_mesh
-    from faceanim.transfer import learn_expression, rigid_align, skull_vertices
+    from faceanim.face.frame import rigid_align
+    from faceanim.face.landmarks import detect_landmarks
+    from faceanim.io.meshio import load_mesh
+    from faceanim.rig.transfer import learn_expression, skull_vertices
 
     n = load_mesh(need(FACEWAREHOUSE / "pose_0.obj"))
     e = load_mesh(FACEWAREHOUSE / "pose_2.obj")
@@ -136,9 +133,9 @@ def test_rebuild_real_expression_beats_landmark_tps():
 
 def test_learning_without_correspondence_recovers_a_known_motion(face, face_landmarks):
     """Thesis 5.5.3 on a synthetic pair: landmark TPS + snapping finds the control points' motion."""
-    from faceanim.facs import face_frame
-    from faceanim.landmarks import Landmarks
-    from faceanim.transfer import learn_expression
+    from faceanim.face.frame import face_frame
+    from faceanim.face.landmarks import Landmarks
+    from faceanim.rig.transfer import learn_expression
 
     lm = landmarks_478(face, face_landmarks)
     y = face.vertices[:, 1]
@@ -157,7 +154,7 @@ def test_learning_without_correspondence_recovers_a_known_motion(face, face_land
 
 
 def test_target_without_a_face_region_is_refused(base_face, rng):
-    from faceanim.facs import free_region
+    from faceanim.face.regions import free_region
 
     lm = base_face.vertices[:478].copy()
     away = base_face.with_vertices(base_face.vertices + [0.0, 0.0, -1.0])  # the face 1 m behind its landmarks
@@ -173,7 +170,7 @@ def test_aus_from_one_scan_share_its_measurement(transfer):
     one_scan = model.samples[1]
     names = sorted(set(model.samples[1].names) | set(model.samples[2].names))
     merged = {n: d for s in (model.samples[1], model.samples[2]) for n, d in zip(s.names, s.displacements)}
-    from faceanim.transfer import ExpressionSample
+    from faceanim.rig.transfer import ExpressionSample
 
     want = transfer.delta(ExpressionSample(names, np.array([merged[n] for n in names]), one_scan.source))
     np.testing.assert_allclose(both, want, atol=1e-12)

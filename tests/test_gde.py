@@ -125,7 +125,7 @@ def test_unmoved_vertices_keep_their_bits_even_negative_zero(face, face_landmark
     rest = face.vertices.copy()
     far = np.flatnonzero(np.linalg.norm(rest - face_landmarks["chin"], axis=1) > 0.05)[:10]
     rest[far, 0] = -0.0
-    from faceanim.mesh import Mesh
+    from faceanim.face.mesh import Mesh
 
     m = Mesh(rest, face.faces)
     d = bind_gdes(m, [GDE(tuple(face_landmarks["chin"]), 0.02, "euclidean")])

@@ -9,7 +9,7 @@ import pygltflib
 import pytest
 from conftest import ROOT
 
-from faceanim.export.gltf import write_gltf
+from faceanim.io.gltf import write_gltf
 
 VALIDATOR = ROOT / "tools" / "validate_gltf.js"
 

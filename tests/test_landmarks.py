@@ -11,8 +11,12 @@ import pytest
 from conftest import FACEWAREHOUSE, ICT, need
 
 from faceanim.errors import LandmarkError
-from faceanim.landmarks import Landmarks, detect_landmarks, detect_landmarks_in_image
-from faceanim.mesh import load_mesh
+from faceanim.face.landmarks import (
+    Landmarks,
+    detect_landmarks,
+    detect_landmarks_in_image,
+)
+from faceanim.io.meshio import load_mesh
 
 TOL = 0.05
 
@@ -105,7 +109,7 @@ def test_no_face_found():
 def test_no_face_in_a_mesh_render():
     import trimesh
 
-    from faceanim.mesh import Mesh
+    from faceanim.face.mesh import Mesh
 
     box = trimesh.creation.box()
     with pytest.raises(LandmarkError, match="no face found.*--forward"):
@@ -120,7 +124,7 @@ def test_bad_landmark_file(tmp_path):
 
 def test_2d_picks_ray_cast_onto_the_surface(face):
     """Seed section 2.2: a pick at a vertex's image position lands on that vertex."""
-    from faceanim.landmarks import detection_view, pick_surface_points
+    from faceanim.face.landmarks import detection_view, pick_surface_points
 
     ids = [4, 61, 152, 334]  # nose tip, mouth corner, chin, brow
     with detection_view(face) as view:

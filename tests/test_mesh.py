@@ -5,7 +5,8 @@ import pytest
 from conftest import FACEWAREHOUSE, ICT, need
 
 from faceanim.errors import MeshError
-from faceanim.mesh import Mesh, load_mesh, save_mesh
+from faceanim.face.mesh import Mesh
+from faceanim.io.meshio import load_mesh, save_mesh
 
 
 def _raw_obj_vertices(path):

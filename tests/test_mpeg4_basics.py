@@ -3,19 +3,13 @@
 import numpy as np
 import pytest
 
+from faceanim.drivers.mpeg4 import FapStream
 from faceanim.errors import InputFileError, LandmarkError
-from faceanim.facs import face_frame, landmarks_478
-from faceanim.mpeg4 import (
-    FapError,
-    FapStream,
-    fap,
-    faps,
-    feature_points,
-    parse_fap,
-    read_fap,
-    write_fap,
-)
-from faceanim.mpeg4.faps import direction_vector
+from faceanim.face.face import landmarks_478
+from faceanim.face.faps import FapError, direction_vector, fap, faps
+from faceanim.face.fdp import feature_points
+from faceanim.face.frame import face_frame
+from faceanim.io.fapfile import parse_fap, read_fap, write_fap
 
 
 def test_fap_table():
@@ -112,7 +106,7 @@ def test_feature_points_and_fapu(face, face_landmarks):
 
 @pytest.fixture(scope="module")
 def fap_rig(face, face_landmarks):
-    from faceanim.mpeg4.deformation import FapRig
+    from faceanim.rig.mpeg4 import FapRig
 
     return FapRig.build(face, landmarks_478(face, face_landmarks))
 
@@ -167,9 +161,9 @@ def test_rotations_and_unsupported_faps(fap_rig, face):
 def test_eyeballs_turn_on_a_head_that_has_them(fap_rig):
     from conftest import ICT, need
 
-    from faceanim.landmarks import detect_landmarks
-    from faceanim.mesh import load_mesh
-    from faceanim.mpeg4.deformation import FapRig
+    from faceanim.face.landmarks import detect_landmarks
+    from faceanim.io.meshio import load_mesh
+    from faceanim.rig.mpeg4 import FapRig
 
     assert 23 in fap_rig.unsupported  # the default face is a mask without eyeballs
     head = load_mesh(need(ICT / "generic_neutral_mesh.obj"))

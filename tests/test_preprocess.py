@@ -1,10 +1,7 @@
 import numpy as np
 import pytest
 
-from faceanim.errors import LandmarkError
-from faceanim.facs import face_frame, landmarks_478
-from faceanim.landmarks import BASIC22
-from faceanim.preprocess import (
+from faceanim.build.preprocess import (
     CHIN,
     EYE_OUTER_L,
     EYE_OUTER_R,
@@ -16,6 +13,10 @@ from faceanim.preprocess import (
     preprocess,
     resample_to_grid,
 )
+from faceanim.errors import LandmarkError
+from faceanim.face.face import landmarks_478
+from faceanim.face.frame import face_frame
+from faceanim.face.landmarks import BASIC22
 
 
 @pytest.fixture(scope="module")

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from faceanim.animation import KeyframeAnimation, expression_tour
 from faceanim.deform import bind_gdes
 from faceanim.demo import demo_expressions
+from faceanim.drivers.keyframes import KeyframeAnimation, expression_tour
 from faceanim.errors import DeformError, FaceAnimError
-from faceanim.rig import Rig
+from faceanim.rig.rig import Rig
 
 
 @pytest.fixture(scope="module")

@@ -9,10 +9,10 @@ import pytest
 from conftest import DATA, need
 
 from faceanim.cli import main
-from faceanim.mpeg4.actions import Action, blend_actions, expression_faps, fap_set
-from faceanim.mpeg4.faps import FapError
-from faceanim.speech import Phone, phone_viseme, viseme_actions
-from faceanim.speech.phonemes import SpeechError, words_of
+from faceanim.drivers.mpeg4 import Action, blend_actions, expression_faps, fap_set
+from faceanim.drivers.speech import Phone, phone_viseme, viseme_actions
+from faceanim.drivers.speech.phonemes import SpeechError, words_of
+from faceanim.face.faps import FapError
 
 SPEECH = DATA / "speech-librivox"
 has_espeak = pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="espeak-ng is not installed (scripts/setup.sh installs it)")
@@ -74,7 +74,7 @@ def test_words_and_text_without_words():
 
 
 def test_alignment_of_real_speech():
-    from faceanim.speech import align, load_wav
+    from faceanim.drivers.speech import align, load_wav
 
     wav = need(SPEECH / "clip-0880.wav")
     phones = align(wav, (SPEECH / "clip-0880.txt").read_text())
@@ -92,7 +92,7 @@ def test_alignment_of_real_speech():
 
 @has_espeak
 def test_say_writes_a_fap_file_and_glb(tmp_path, capsys):
-    from faceanim.mpeg4 import read_fap
+    from faceanim.io.fapfile import read_fap
 
     out = tmp_path / "hello.fap"
     assert main(["say", "Hello, how are you?", "-o", str(out)]) == 0
@@ -105,7 +105,8 @@ def test_say_writes_a_fap_file_and_glb(tmp_path, capsys):
 
 
 def test_fap_play_renders_a_video(tmp_path):
-    from faceanim.mpeg4 import FapStream, write_fap
+    from faceanim.drivers.mpeg4 import FapStream
+    from faceanim.io.fapfile import write_fap
 
     s = FapStream.empty(6, fps=10)
     s.set("open_jaw", [0, 100, 300, 500, 300, 0])
@@ -120,7 +121,7 @@ def test_fap_play_renders_a_video(tmp_path):
 
 
 def test_fap_write(tmp_path, capsys):
-    from faceanim.mpeg4 import read_fap
+    from faceanim.io.fapfile import read_fap
 
     out = tmp_path / "s.fap"
     assert main(["fap", "write", "--expression", "surprise", "--fap", "head_yaw=5000", "--duration", "1",

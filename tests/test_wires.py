@@ -18,7 +18,9 @@ from faceanim.deform.wires import (
     falloff,
 )
 from faceanim.errors import DeformError, FaceAnimError
-from faceanim.facewires import (
+from faceanim.face.face import landmarks_478
+from faceanim.io.meshio import save_mesh
+from faceanim.rig.wires import (
     WireTemplate,
     blend,
     blend_blendshapes,
@@ -28,8 +30,6 @@ from faceanim.facewires import (
     extract_template,
     render_wires,
 )
-from faceanim.facs import landmarks_478
-from faceanim.mesh import save_mesh
 
 
 def test_falloff_and_curve_against_scipy(rng):
@@ -88,7 +88,7 @@ def face_wires(base_face):
 
 
 def _landmarks(mesh):
-    from faceanim.landmarks import Landmarks
+    from faceanim.face.landmarks import Landmarks
 
     return Landmarks.from_dict({"points": [{"index": i, "position": mesh.vertices[i].tolist()} for i in range(478)]})
 
@@ -204,10 +204,10 @@ def test_cli_extract_apply_blend(tmp_path, base_face, face_wires, rng, capsys):
 
 def test_real_templates_rebuild(tmp_path):
     """A real FaceWarehouse smile through its wires: far closer than no motion."""
-    from faceanim.facewires import align_template
-    from faceanim.facs import face_region
-    from faceanim.landmarks import detect_landmarks
-    from faceanim.mesh import load_mesh
+    from faceanim.face.landmarks import detect_landmarks
+    from faceanim.face.regions import face_region
+    from faceanim.io.meshio import load_mesh
+    from faceanim.rig.wires import align_template
 
     base = load_mesh(need(FACEWAREHOUSE / "pose_0.obj"))
     lm = landmarks_478(base, detect_landmarks(base))

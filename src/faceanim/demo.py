@@ -16,12 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .animation import expression_tour
-from .default_face import default_face, default_landmarks
-from .deform.gde import GeometryDeformationElement as GDE
-from .export.gltf import write_gltf
-from .render import OffscreenRenderer, save_png, write_video
-from .rig import Expression, Rig
+from faceanim.deform.gde import GeometryDeformationElement as GDE
+from faceanim.drivers.keyframes import expression_tour
+from faceanim.face.default import default_face, default_landmarks
+from faceanim.io.gltf import write_gltf
+from faceanim.render import OffscreenRenderer, save_png, write_video
+from faceanim.rig.expressions import Expression
+from faceanim.rig.rig import Rig
 
 
 def demo_expressions(lm) -> list[Expression]:
@@ -54,8 +55,8 @@ def demo_expressions(lm) -> list[Expression]:
 
 def emotion_blendshapes(mesh, lm) -> dict[str, np.ndarray]:
     """The six basic emotions on ``mesh`` from the built-in action-unit library, ``facs_<name>``."""
-    from .facs import landmarks_478
-    from .transfer import ExpressionTransfer, default_model
+    from faceanim.face.face import landmarks_478
+    from faceanim.rig.transfer import ExpressionTransfer, default_model
 
     rig = ExpressionTransfer(mesh, landmarks_478(mesh, lm)).rig(default_model(), sides=False)
     return {f"facs_{name}": d for name, d in rig.blendshape_dict().items() if not name.startswith("AU")}

@@ -1,9 +1,14 @@
 """The deformation core: every method binds once to a rest pose and compiles to one
 :class:`LinearDeformer` (``positions = rest + W @ handle offsets``)."""
 
-from .base import LinearDeformer
-from .gde import BoundElement, GeometryDeformationElement, bind_element, bind_gdes
-from .rbf import KERNELS, RadialBasis, bind_rbf
+from faceanim.deform.base import LinearDeformer
+from faceanim.deform.gde import (
+    BoundElement,
+    GeometryDeformationElement,
+    bind_element,
+    bind_gdes,
+)
+from faceanim.deform.rbf import KERNELS, RadialBasis, bind_rbf
 
 __all__ = [
     "KERNELS",

@@ -18,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import DeformError
+from faceanim.errors import DeformError
 
 # frames per block in batched dense evaluation: enough rows for BLAS to run near peak
 _FRAME_BLOCK = 64

@@ -28,9 +28,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from ..errors import DeformError
-from .base import LinearDeformer
-from .rbf import DEFAULT_SMOOTHING, KERNELS, RadialBasis, check_points
+from faceanim.deform.base import LinearDeformer
+from faceanim.deform.rbf import DEFAULT_SMOOTHING, KERNELS, RadialBasis, check_points
+from faceanim.errors import DeformError
 
 METRICS = ("edges", "euclidean")
 MAX_ANCHORS = 20

@@ -36,8 +36,8 @@ import numpy as np
 import scipy.linalg as la
 from scipy.spatial import cKDTree
 
-from ..errors import DeformError
-from .base import LinearDeformer
+from faceanim.deform.base import LinearDeformer
+from faceanim.errors import DeformError, LandmarkError
 
 KERNELS = ("multiquadric", "gaussian", "thin_plate_spline")
 DEFAULT_DEGREE = {"multiquadric": -1, "gaussian": -1, "thin_plate_spline": 1}
@@ -250,3 +250,38 @@ def bind_rbf(rest, handles, kernel: str = "multiquadric", smoothing: float = DEF
     pts = rest if rows is None else rest[np.asarray(rows)]
     w = system.weights(pts)
     return LinearDeformer(rest.astype(dtype), w.astype(dtype), rows)
+
+
+def landmark_tps(source, target, what: str = "landmarks", merge_repeated: bool = False):
+    """The thesis' 3D thin-plate spline through landmark pairs (eqs. 4.11-4.19).
+
+    Returns a callable ``f(points)`` mapping points near ``source`` to points near ``target``.
+    Repeated or coplanar landmarks make the system singular: refused with a clear error, unless
+    ``merge_repeated`` (dense detected sets such as MediaPipe's 478, where two points can land on
+    one vertex): then only the first of each repeated source point is kept.
+    """
+    src = check_points(source, f"source {what}", min_count=5)
+    dst = check_points(target, f"target {what}", min_count=5)
+    if src.shape != dst.shape:
+        raise LandmarkError(f"source and target {what} differ in count: {len(src)} vs {len(dst)}")
+    if merge_repeated:
+        scale = np.ptp(src, axis=0).max()
+        _, first = np.unique(np.round(src / (1e-6 * scale)).astype(np.int64), axis=0, return_index=True)
+        first = np.sort(first)
+        src, dst = src[first], dst[first]
+    for label, pts in (("source", src), ("target", dst)):
+        sv = np.linalg.svd(pts - pts.mean(0), compute_uv=False)
+        if sv[2] <= 1e-6 * sv[0]:
+            raise LandmarkError(f"the {label} {what} are coplanar (or collinear): a 3D thin-plate spline "
+                                "needs landmarks off one plane (eyes, nose tip and mouth are not)")
+    try:
+        system = RadialBasis(src, "thin_plate_spline", smoothing=0.0)
+    except DeformError as exc:
+        raise LandmarkError(f"{what}: {exc}") from None
+    coeff = system.coefficients(dst - src)
+
+    def warp(points):
+        p = np.asarray(points, dtype=np.float64)
+        return p + system.basis(p) @ coeff
+
+    return warp

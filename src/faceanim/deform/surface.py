@@ -25,8 +25,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 
-from ..errors import DeformError
-from .base import LinearDeformer
+from faceanim.deform.base import LinearDeformer
+from faceanim.errors import DeformError
 
 _COT_CLAMP = 1e3  # bounds cot(angle) on degenerate triangles of raw scans
 

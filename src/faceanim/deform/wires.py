@@ -27,9 +27,9 @@ import scipy.sparse as sp
 from scipy.interpolate import BSpline
 from scipy.spatial import cKDTree
 
-from ..errors import DeformError
-from .base import LinearDeformer
-from .rbf import check_points
+from faceanim.deform.base import LinearDeformer
+from faceanim.deform.rbf import check_points
+from faceanim.errors import DeformError
 
 DEGREE = 3
 _SAMPLES_PER_SPAN = 48  # dense samples of the reference curve for the closest-point search

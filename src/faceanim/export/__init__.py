@@ -1,1 +1,0 @@
-"""Exchange formats for animated faces."""

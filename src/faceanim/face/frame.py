@@ -1,0 +1,73 @@
+"""A face's own frame from its landmarks, and rigid alignment of two point sets."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from faceanim.errors import LandmarkError
+
+
+# ---------------------------------------------------------------------------- face geometry
+@dataclass(frozen=True)
+class FaceFrame:
+    """A face's own frame from landmarks: origin at the nose tip, x towards the subject's left
+    eye, y up, z forward; its inter-ocular distance and mouth width (the thesis' s_t, s_s)."""
+
+    origin: np.ndarray
+    rotation: np.ndarray  # rows: x, y, z axes in mesh coordinates
+    iod: float
+    mouth_width: float
+
+    def to_local(self, points: np.ndarray) -> np.ndarray:
+        return (np.asarray(points) - self.origin) @ self.rotation.T
+
+    def vectors_to_local(self, vectors: np.ndarray) -> np.ndarray:
+        return np.asarray(vectors) @ self.rotation.T
+
+    def vectors_to_mesh(self, vectors: np.ndarray) -> np.ndarray:
+        return np.asarray(vectors) @ self.rotation
+
+
+def face_frame(lm478: np.ndarray) -> FaceFrame:
+    p = np.asarray(lm478)
+    x = p[263] - p[33]
+    iod = float(np.linalg.norm(x))
+    mouth = float(np.linalg.norm(p[291] - p[61]))
+    if iod <= 0 or mouth <= 0 or not np.isfinite(iod + mouth):
+        raise LandmarkError("the eye corners or mouth corners coincide; the landmarks are broken")
+    x = x / iod
+    up = (p[33] + p[263]) / 2 - p[152]
+    y = up - x * (up @ x)
+    height = np.linalg.norm(y)
+    if not (0.2 < mouth / iod < 2.0 and 0.5 < height / iod < 4.0):
+        raise LandmarkError(
+            f"the landmarks do not have a face's proportions (mouth width {mouth / iod:.2f}, eyes to chin "
+            f"{height / iod:.2f} inter-ocular distances); they are out of order or not for this face")
+    y /= height
+    z = np.cross(x, y)
+    if (p[4] - (p[33] + p[263]) / 2) @ z <= 0:
+        raise LandmarkError("the nose tip lies behind the eyes in these landmarks: they are mirrored "
+                            "(left and right swapped) or out of order")
+    return FaceFrame(p[4].copy(), np.stack([x, y, z]), iod, mouth)
+
+
+def rigid_align(moving: np.ndarray, fixed: np.ndarray, keep: float = 0.5,
+                iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R and translation t that best map ``moving`` onto ``fixed`` (Kabsch), robustly:
+    after a first fit only the best-fitting ``keep`` fraction of the points is refitted, a few
+    times, so skin that did move (a neck dragged by the jaw) does not tilt the skull."""
+    a, b = np.asarray(moving, dtype=np.float64), np.asarray(fixed, dtype=np.float64)
+    sel = np.arange(len(a))
+    for it in range(iterations + 1):
+        ca, cb = a[sel].mean(0), b[sel].mean(0)
+        u, _, vt = np.linalg.svd((a[sel] - ca).T @ (b[sel] - cb))
+        d = np.sign(np.linalg.det(vt.T @ u.T))
+        r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+        t = cb - r @ ca
+        if it == iterations or len(a) < 8:
+            break
+        res = np.linalg.norm(a @ r.T + t - b, axis=1)
+        sel = np.argsort(res)[: max(4, int(keep * len(a)))]
+    return r, t

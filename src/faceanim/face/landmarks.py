@@ -1,0 +1,302 @@
+"""Named facial landmarks on any mesh: schemes, detection and JSON exchange.
+
+Detection (seed paper section 2.2): render the mesh from the front with a parallel camera
+(textured, or shaded in a skin colour when it has no texture), run the MediaPipe face mesh on
+the render (model inside the ``mediapipe==0.10.21`` wheel, 478 points with the irises), and
+cast a ray from each detected image point onto the surface. Each landmark keeps its MediaPipe
+index, its triangle and barycentric coordinates, so it follows the surface when the mesh
+deforms (:meth:`Landmarks.on`).
+
+Left and right are the subject's own: ``mouth_corner_right`` is MediaPipe point 61, on the left
+of a frontal image.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from faceanim.errors import LandmarkError
+from faceanim.io.files import read_json, write_json
+
+# the basic 22-point set used by later modules (name, MediaPipe index)
+BASIC22 = (
+    ("eye_outer_right", 33), ("eye_inner_right", 133), ("eye_inner_left", 362), ("eye_outer_left", 263),
+    ("brow_outer_right", 70), ("brow_middle_right", 105), ("brow_inner_right", 107),
+    ("brow_inner_left", 336), ("brow_middle_left", 334), ("brow_outer_left", 300),
+    ("nose_bridge", 168), ("nose_tip", 4), ("nostril_right", 98), ("nostril_left", 327),
+    ("subnasale", 2),
+    ("mouth_corner_right", 61), ("mouth_corner_left", 291),
+    ("upper_lip_top", 0), ("upper_lip_inner", 13), ("lower_lip_inner", 14), ("lower_lip_bottom", 17),
+    ("chin", 152),
+)
+# further well-known MediaPipe points, named in the 478 scheme
+_EXTRA_NAMES = {
+    10: "forehead_top", 468: "iris_centre_right", 473: "iris_centre_left",
+    159: "upper_eyelid_right", 145: "lower_eyelid_right", 386: "upper_eyelid_left", 374: "lower_eyelid_left",
+    234: "face_edge_right", 454: "face_edge_left", 50: "cheek_right", 280: "cheek_left",
+}
+MEDIAPIPE_NAMES = {i: f"mp{i}" for i in range(478)}
+MEDIAPIPE_NAMES.update(_EXTRA_NAMES)
+MEDIAPIPE_NAMES.update({i: n for n, i in BASIC22})
+
+SCHEMES = {
+    "mediapipe478": tuple((MEDIAPIPE_NAMES[i], i) for i in range(478)),
+    "basic22": BASIC22,
+}
+
+
+@dataclass
+class Landmarks:
+    """Named 3D landmarks on a mesh surface.
+
+    ``indices`` are MediaPipe indices; ``triangles`` and ``barycentric`` attach each point to the
+    surface (``-1`` / zeros when a point was given by position only).
+    """
+
+    scheme: str
+    names: list[str]
+    indices: np.ndarray
+    positions: np.ndarray
+    triangles: np.ndarray
+    barycentric: np.ndarray
+    detected_on: str | None = field(default=None, repr=False)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.names
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        """Position of the landmark called ``name``."""
+        try:
+            return self.positions[self.names.index(name)]
+        except ValueError:
+            raise LandmarkError(f"no landmark named '{name}' in scheme '{self.scheme}'") from None
+
+    def subset(self, scheme: str) -> Landmarks:
+        """The landmarks of another (smaller) scheme, e.g. ``basic22`` out of ``mediapipe478``."""
+        if scheme not in SCHEMES:
+            raise LandmarkError(f"unknown landmark scheme '{scheme}'; choose one of: {', '.join(SCHEMES)}")
+        where = {int(i): k for k, i in enumerate(self.indices)}
+        missing = [n for n, i in SCHEMES[scheme] if i not in where]
+        if missing:
+            raise LandmarkError(f"scheme '{scheme}' needs landmarks missing here: {', '.join(missing[:5])}")
+        sel = np.array([where[i] for _, i in SCHEMES[scheme]])
+        return Landmarks(scheme, [n for n, _ in SCHEMES[scheme]], self.indices[sel], self.positions[sel],
+                         self.triangles[sel], self.barycentric[sel], self.detected_on)
+
+    def on(self, mesh_or_vertices, faces: np.ndarray | None = None) -> np.ndarray:
+        """Positions of the landmarks on a deformed mesh of the same topology."""
+        if hasattr(mesh_or_vertices, "vertices"):
+            verts, faces = mesh_or_vertices.vertices, mesh_or_vertices.faces
+        else:
+            verts = np.asarray(mesh_or_vertices)
+        if faces is None:
+            raise LandmarkError("give the faces of the mesh to move landmarks onto it")
+        if (self.triangles < 0).any():
+            raise LandmarkError("these landmarks were given by position only and cannot follow a deformation")
+        corners = verts[faces[self.triangles]]
+        return np.einsum("nk,nkd->nd", self.barycentric, corners)
+
+    def to_dict(self) -> dict:
+        pts = []
+        for k in range(len(self)):
+            pts.append({
+                "index": int(self.indices[k]), "name": self.names[k],
+                "position": [float(x) for x in self.positions[k]],
+                "triangle": int(self.triangles[k]),
+                "barycentric": [float(x) for x in self.barycentric[k]],
+            })
+        d = {"scheme": self.scheme, "points": pts}
+        if self.detected_on:
+            d["detected_on"] = self.detected_on
+        return d
+
+    def save(self, path: str | os.PathLike) -> Path:
+        write_json(path, self.to_dict())
+        return Path(path)
+
+    @classmethod
+    def from_dict(cls, d: object, source: str = "landmarks") -> Landmarks:
+        if not isinstance(d, dict) or not isinstance(d.get("points"), list) or not d["points"]:
+            raise LandmarkError(f"{source}: expected {{'scheme': ..., 'points': [{{'name', 'position'}}, ...]}}")
+        names, idx, pos, tri, bary = [], [], [], [], []
+        for k, p in enumerate(d["points"]):
+            if not isinstance(p, dict) or "position" not in p:
+                raise LandmarkError(f"{source}: point {k} needs a 'position' [x, y, z]")
+            try:
+                xyz = np.asarray(p["position"], dtype=np.float64)
+            except (TypeError, ValueError):
+                xyz = np.zeros(0)
+            if xyz.shape != (3,) or not np.all(np.isfinite(xyz)):
+                raise LandmarkError(f"{source}: point {k} has an invalid position {p['position']!r}")
+            i = int(p.get("index", -1))
+            names.append(str(p.get("name") or MEDIAPIPE_NAMES.get(i, f"point{k}")))
+            idx.append(i)
+            pos.append(xyz)
+            tri.append(int(p.get("triangle", -1)))
+            bary.append(p.get("barycentric", [0.0, 0.0, 0.0]))
+        return cls(str(d.get("scheme", "custom")), names, np.array(idx), np.array(pos), np.array(tri),
+                   np.asarray(bary, dtype=np.float64), d.get("detected_on"))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Landmarks:
+        return cls.from_dict(read_json(path, "landmark file"), str(path))
+
+    def attached_to(self, mesh, max_distance: float = 0.05) -> Landmarks:
+        """These landmarks snapped to ``mesh``'s surface, with triangles and barycentrics.
+
+        Used when landmarks come from a file instead of detection. A point farther from the
+        surface than ``max_distance`` times the mesh's bounding-box diagonal is refused.
+        """
+        pos, dist, tri = mesh.closest_points(self.positions)
+        limit = max_distance * mesh.bounding_box_diagonal
+        far = np.flatnonzero(dist > limit)
+        if far.size:
+            k = far[0]
+            raise LandmarkError(
+                f"landmark '{self.names[k]}' is {dist[k]:.4g} from the surface of '{mesh.name}' (more than "
+                f"{limit:.4g}); are the landmarks for this mesh and in its units?")
+        return Landmarks(self.scheme, list(self.names), self.indices.copy(), pos, np.asarray(tri),
+                         mesh.barycentric(pos, tri), self.detected_on)
+
+
+def detect_landmarks_in_image(rgb: np.ndarray) -> np.ndarray:
+    """MediaPipe face mesh on an RGB image: (478, 3) points, x and y normalised to [0, 1].
+
+    Raises :class:`LandmarkError` when no face is found.
+    """
+    img = np.ascontiguousarray(np.asarray(rgb)[..., :3], dtype=np.uint8)
+    if img.ndim != 3 or min(img.shape[:2]) < 32:
+        raise LandmarkError(f"expected an RGB image of at least 32x32 pixels, got shape {img.shape}")
+    os.environ.setdefault("GLOG_minloglevel", "2")
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+    try:
+        import mediapipe as mp
+    except ImportError:
+        raise LandmarkError("landmark detection needs mediapipe==0.10.21 (pip install mediapipe==0.10.21)") from None
+    with mp.solutions.face_mesh.FaceMesh(static_image_mode=True, max_num_faces=1, refine_landmarks=True,
+                                         min_detection_confidence=0.3) as fm:
+        result = fm.process(img)
+    if not result.multi_face_landmarks:
+        raise LandmarkError("no face found in the image; check that the face is frontal, lit and large in the frame")
+    lm = result.multi_face_landmarks[0].landmark
+    return np.array([[p.x, p.y, p.z] for p in lm], dtype=np.float64)
+
+
+def detect_landmarks(mesh, scheme: str = "mediapipe478", forward: str = "+z", up: str = "+y",
+                     size: int = 768, return_image: bool = False):
+    """Detect named landmarks on ``mesh`` by rendering it, running MediaPipe and ray casting.
+
+    ``forward`` and ``up`` say which mesh axes the face looks along and points up (FaceWarehouse,
+    ICT and faceanim's default face: +z and +y).
+    """
+    if scheme not in SCHEMES:
+        raise LandmarkError(f"unknown landmark scheme '{scheme}'; choose one of: {', '.join(SCHEMES)}")
+    with detection_view(mesh, forward, up, size) as r:
+        image = r.render()
+        try:
+            pts2d = detect_landmarks_in_image(image)
+        except LandmarkError as exc:
+            raise LandmarkError(
+                f"{exc} (rendered '{mesh.name}' looking along {forward} with {up} up; "
+                "pass --forward/--up if the face points elsewhere, or give landmarks in a JSON file)"
+            ) from None
+        origins, dirs = r.pixel_rays(pts2d[:, :2])
+    pos, tri = _cast_onto_surface(mesh, origins, dirs, r.rotation)
+    bary = mesh.barycentric(pos, tri)
+    names = [n for n, _ in SCHEMES[scheme]]
+    idx = np.array([i for _, i in SCHEMES[scheme]])
+    lms = Landmarks(scheme, names, idx, pos[idx], tri[idx], bary[idx], mesh.source or mesh.name)
+    return (lms, image) if return_image else lms
+
+
+def detection_view(mesh, forward: str = "+z", up: str = "+y", size: int = 768):
+    """The parallel front view used for detection; its normalised image coordinates are the
+    ones :func:`pick_surface_points` takes (x right, y down, in [0, 1])."""
+    from faceanim.render import OffscreenRenderer, view_rotation
+
+    rot = view_rotation(forward, up)
+    return OffscreenRenderer(mesh, size=(size, size), parallel=True, rotation=rot,
+                             frame_vertices=_face_frame(mesh, rot), margin=1.0)
+
+
+def pick_surface_points(mesh, xy, forward: str = "+z", up: str = "+y") -> tuple[np.ndarray, np.ndarray]:
+    """2D picks to 3D surface points by ray casting (seed paper section 2.2).
+
+    ``xy`` (N, 2) are normalised coordinates in the front view that ``faceanim landmarks
+    --image`` saves. Returns (positions (N, 3), triangle ids (N,)).
+    """
+    xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
+    if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
+        raise LandmarkError(f"picks must be finite (N, 2) image coordinates, got shape {xy.shape}")
+    with detection_view(mesh, forward, up) as r:
+        origins, dirs = r.pixel_rays(xy)
+    return _cast_onto_surface(mesh, origins, dirs, r.rotation)
+
+
+def _cast_onto_surface(mesh, origins, dirs, rot) -> tuple[np.ndarray, np.ndarray]:
+    """First front-facing hit of each ray; rays through an opening snap to the nearest vertex."""
+    hit, pos, tri = mesh.cast_rays(origins, dirs)
+    # a first hit on a back face means the ray went through an opening (eye holes of a scan,
+    # parted lips) and met the inside of the head: treat it as a miss
+    fv = mesh.vertices[mesh.faces[np.where(hit, tri, 0)]]
+    normal = np.cross(fv[:, 1] - fv[:, 0], fv[:, 2] - fv[:, 0])
+    hit &= (normal * dirs).sum(1) < 0
+    if (~hit).any():
+        # rays through a gap: the front-most vertex among those whose projection lies within
+        # half an edge of the ray's closest one
+        from scipy.spatial import cKDTree
+
+        view = mesh.vertices @ rot.T
+        tree = cKDTree(view[:, :2])
+        o = origins[~hit] @ rot.T
+        dist, _ = tree.query(o[:, :2])
+        v = np.empty(len(o), dtype=np.int64)
+        for k, (point, d) in enumerate(zip(o[:, :2], dist)):
+            near = np.asarray(tree.query_ball_point(point, d + 0.5 * mesh.mean_edge_length))
+            v[k] = near[view[near, 2].argmax()]
+        pos[~hit] = mesh.vertices[v]
+        tri[~hit] = mesh.vertex_triangle[v]
+    return pos, tri
+
+
+def _face_frame(mesh, rot: np.ndarray) -> np.ndarray:
+    """Vertices that frame the face for detection: the front-facing part of a head.
+
+    A full head (with neck and shoulders) renders the face small; framing the front half of the
+    upper part keeps the face large enough for the detector.
+    """
+    v = mesh.vertices @ rot.T
+    lo, hi = v.min(0), v.max(0)
+    depth = hi[2] - lo[2]
+    front = v[:, 2] >= hi[2] - 0.6 * depth
+    sel = v[front]
+    if len(sel) < 3:
+        return mesh.vertices
+    return sel @ rot
+
+
+# the face oval of the MediaPipe face mesh, in order (forehead top, subject's left side, chin, ...)
+FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377,
+             152, 148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109)
+
+
+# outer lip contour and the lid margins: what projects inside them and lies behind them is the
+# mouth cavity or the eye socket, not visible skin
+LIP_OUTER = (61, 185, 40, 39, 37, 0, 267, 269, 270, 409, 291, 375, 321, 405, 314, 17, 84, 181, 91, 146)
+
+
+EYE_RIGHT = (33, 246, 161, 160, 159, 158, 157, 173, 133, 155, 154, 153, 145, 144, 163, 7)
+
+
+EYE_LEFT = (263, 466, 388, 387, 386, 385, 384, 398, 362, 382, 381, 380, 374, 373, 390, 249)
+
+
+# landmarks on bone that barely move with expressions: rigid alignment of expressive scans
+STABLE_LANDMARKS = (168, 6, 197, 195, 133, 362, 33, 263, 234, 454, 10, 151)

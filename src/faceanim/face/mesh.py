@@ -1,0 +1,248 @@
+"""The mesh: vertices, triangles, UVs and texture, with file exchange that keeps vertex order.
+
+A user's mesh comes back as it went in: the same vertex count and order, UVs and texture kept,
+so that deformed meshes and morph targets line up with the original asset in Blender, Maya or
+an engine. OBJ is read and written here (trimesh splits vertices along UV seams on load, which
+would renumber them); PLY, glTF and GLB are read with trimesh, whose loaders keep the stored
+vertex order. Polygons are triangulated as fans; OBJ output writes the original polygons back.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+from faceanim.errors import MeshError
+
+
+@dataclass(eq=False)
+class Mesh:
+    """A triangle mesh with optional texture coordinates and texture image.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float64
+    faces : (T, 3) int64, triangles indexing ``vertices``
+    uv : (U, 2) float64 or None, texture coordinates (v up, as in OBJ and glTF's flipped v)
+    face_uv : (T, 3) int64 or None, the UV index of each triangle corner (OBJ style; equal to
+        ``faces`` when UVs are per vertex)
+    texture : (H, W, 3 or 4) uint8 or None
+    polygon_sizes : (P,) int or None, corner counts of the original polygons (fan-triangulated
+        into ``faces`` in order), used to write the original polygons back to OBJ
+    name : str
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray | None = None
+    face_uv: np.ndarray | None = None
+    texture: np.ndarray | None = None
+    polygon_sizes: np.ndarray | None = None
+    name: str = "mesh"
+    source: str | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        v = np.asarray(self.vertices, dtype=np.float64)
+        f = np.asarray(self.faces, dtype=np.int64)
+        label = self.source or self.name
+        if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
+            raise MeshError(f"mesh '{label}' has no vertices; give a mesh with at least one triangle")
+        if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
+            raise MeshError(f"mesh '{label}' has no triangles; give a surface mesh, not a point cloud")
+        bad = ~np.all(np.isfinite(v), axis=1)
+        if bad.any():
+            idx = np.flatnonzero(bad)
+            raise MeshError(
+                f"mesh '{label}' has NaN or infinite coordinates at {idx.size} vertex(es), first at "
+                f"index {idx[0]}; repair or re-export the mesh"
+            )
+        if f.min() < 0 or f.max() >= v.shape[0]:
+            raise MeshError(f"mesh '{label}' has faces that index missing vertices (0..{v.shape[0] - 1})")
+        self.vertices, self.faces = v, f
+        if self.uv is not None:
+            self.uv = np.asarray(self.uv, dtype=np.float64)
+            if self.face_uv is None:
+                if self.uv.shape[0] != v.shape[0]:
+                    raise MeshError("per-vertex uv must have one row per vertex")
+                self.face_uv = f
+            self.face_uv = np.asarray(self.face_uv, dtype=np.int64)
+            if self.face_uv.shape != f.shape or self.face_uv.min() < 0 or self.face_uv.max() >= len(self.uv):
+                raise MeshError(f"mesh '{label}' has texture-coordinate indices out of range")
+        else:
+            self.face_uv = None
+
+    # ------------------------------------------------------------------ derived, cached
+    @property
+    def n_vertices(self) -> int:
+        return self.vertices.shape[0]
+
+    @property
+    def n_faces(self) -> int:
+        return self.faces.shape[0]
+
+    @cached_property
+    def edges(self) -> np.ndarray:
+        """(E, 2) unique undirected edges, smaller index first."""
+        f = self.faces
+        e = np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        e.sort(axis=1)
+        return np.unique(e, axis=0)
+
+    @cached_property
+    def adjacency(self) -> sp.csr_matrix:
+        """(V, V) symmetric vertex adjacency over mesh edges (CSR, boolean)."""
+        e = self.edges
+        n = self.n_vertices
+        data = np.ones(2 * len(e), dtype=bool)
+        a = sp.csr_matrix((data, (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
+        a.sort_indices()
+        return a
+
+    @cached_property
+    def bounding_box_diagonal(self) -> float:
+        return float(np.linalg.norm(self.vertices.max(0) - self.vertices.min(0)))
+
+    @cached_property
+    def mean_edge_length(self) -> float:
+        e = self.edges
+        return float(np.linalg.norm(self.vertices[e[:, 0]] - self.vertices[e[:, 1]], axis=1).mean())
+
+    @cached_property
+    def kdtree(self) -> cKDTree:
+        return cKDTree(self.vertices)
+
+    @cached_property
+    def trimesh(self):
+        """The geometry as a ``trimesh.Trimesh`` (same vertex order) for ray and proximity queries."""
+        import trimesh
+
+        return trimesh.Trimesh(self.vertices, self.faces, process=False, validate=False)
+
+    def vertex_normals(self, vertices: np.ndarray | None = None) -> np.ndarray:
+        """Area-weighted unit vertex normals, for the rest pose or for ``vertices``."""
+        return vertex_normals(self.vertices if vertices is None else vertices, self.faces)
+
+    # ------------------------------------------------------------------ queries
+    def closest_points(self, points, triangles=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest surface points: (positions (N, 3), distances (N,), triangle ids (N,)).
+
+        ``triangles`` (indices or a boolean mask) restricts the search to part of the surface,
+        e.g. the skin of a head that also holds eyeballs and teeth.
+        """
+        import trimesh
+
+        pts = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        if triangles is None:
+            closest, dist, tri = trimesh.proximity.closest_point(self.trimesh, pts)
+            return closest, dist, tri
+        allowed = np.asarray(triangles)
+        allowed = np.flatnonzero(allowed) if allowed.dtype == bool else allowed.astype(np.int64)
+        if allowed.size == 0:
+            raise MeshError(f"no triangles of '{self.name}' to search for closest points")
+        if allowed.size == self.n_faces:
+            closest, dist, tri = trimesh.proximity.closest_point(self.trimesh, pts)
+            return closest, dist, tri
+        # the part's search tree is kept: a rig asks about the same part (the skin) many times
+        key = hashlib.sha1(allowed.tobytes()).hexdigest()
+        part = self._parts.get(key)
+        if part is None:
+            part = self._parts[key] = trimesh.Trimesh(self.vertices, self.faces[allowed], process=False,
+                                                      validate=False)
+        closest, dist, tri = trimesh.proximity.closest_point(part, pts)
+        return closest, dist, allowed[np.asarray(tri)]
+
+    @cached_property
+    def _parts(self) -> dict:
+        return {}
+
+    @cached_property
+    def vertex_triangle(self) -> np.ndarray:
+        """One triangle that uses each vertex (the first in face order; -1 for a loose vertex)."""
+        vt = np.full(self.n_vertices, -1, dtype=np.int64)
+        vt[self.faces.ravel()[::-1]] = np.repeat(np.arange(self.n_faces), 3)[::-1]
+        return vt
+
+    @cached_property
+    def vertex_components(self) -> np.ndarray:
+        """Connected-component label of each vertex (shells such as eyeballs or teeth)."""
+        from scipy.sparse.csgraph import connected_components
+
+        return connected_components(self.adjacency, directed=False)[1]
+
+    def barycentric(self, points, triangles) -> np.ndarray:
+        """Barycentric coordinates of ``points`` in ``triangles`` (N, 3)."""
+        import trimesh
+
+        tri = self.vertices[self.faces[np.asarray(triangles)]]
+        return trimesh.triangles.points_to_barycentric(tri, np.atleast_2d(points))
+
+    def cast_rays(self, origins, directions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First hit of each ray: (hit mask (N,), positions (N, 3), triangle ids (N,), -1 on a miss)."""
+        origins = np.atleast_2d(np.asarray(origins, dtype=np.float64))
+        directions = np.atleast_2d(np.asarray(directions, dtype=np.float64))
+        n = len(origins)
+        locs, ray_idx, tri_idx = self.trimesh.ray.intersects_location(origins, directions, multiple_hits=True)
+        hit = np.zeros(n, dtype=bool)
+        pos = np.full((n, 3), np.nan)
+        tri = np.full(n, -1, dtype=np.int64)
+        if len(ray_idx):
+            t = ((locs - origins[ray_idx]) * directions[ray_idx]).sum(1)
+            order = np.lexsort((t, ray_idx))
+            first = order[np.r_[True, np.diff(ray_idx[order]) != 0]]
+            hit[ray_idx[first]] = True
+            pos[ray_idx[first]] = locs[first]
+            tri[ray_idx[first]] = tri_idx[first]
+        return hit, pos, tri
+
+    # ------------------------------------------------------------------ variants
+    def with_vertices(self, vertices) -> Mesh:
+        """The same mesh (faces, UVs, texture) with other vertex positions."""
+        return Mesh(vertices, self.faces, self.uv, self.face_uv, self.texture, self.polygon_sizes,
+                    self.name, self.source)
+
+    def per_vertex_uv(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Split vertices along UV seams for formats with one UV per vertex (glTF, renderers).
+
+        Returns ``(source_vertex (S,), faces (T, 3), uv (S, 2) or None)``. The first V entries of
+        ``source_vertex`` are 0..V-1 in order (each vertex with the UV of its first corner);
+        seam copies follow, so the original vertex order is kept as a prefix.
+        """
+        if self.uv is None:
+            return np.arange(self.n_vertices), self.faces, None
+        v = self.faces.ravel()
+        t = self.face_uv.ravel()
+        nv = self.n_vertices
+        first_uv = np.full(nv, -1, dtype=np.int64)
+        # first corner of each vertex decides its primary uv
+        order = np.arange(v.size)[::-1]
+        first_uv[v[order]] = t[order]
+        primary = first_uv[v] == t
+        source = [np.arange(nv)]
+        uv_index = first_uv.copy()
+        unused = uv_index < 0
+        uv_index[unused] = 0  # vertices not used by any face keep uv 0
+        new_corner = np.empty(v.size, dtype=np.int64)
+        new_corner[primary] = v[primary]
+        if (~primary).any():
+            pairs = np.stack([v[~primary], t[~primary]], axis=1)
+            uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
+            new_corner[~primary] = nv + inv.ravel()
+            source.append(uniq[:, 0])
+            uv_index = np.r_[uv_index, uniq[:, 1]]
+        return np.concatenate(source), new_corner.reshape(-1, 3), self.uv[uv_index]
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals."""
+    a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+    fn = np.cross(b - a, c - a)
+    n = np.zeros_like(vertices)
+    for i in range(3):
+        np.add.at(n, faces[:, i], fn)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(length > 0, length, 1.0)

@@ -1,0 +1,139 @@
+"""ASCII .fap files: read and write FAP streams.
+
+    # comment lines start with '#'
+    2.1 <name> <fps> <number of frames>
+    <mask line: 68 integers 0/1, one per FAP>
+    <value line: frame number, then the values of the FAPs whose mask bit is 1, in FAP order>
+    ... one mask line and one value line per frame ...
+
+FAP 1 (viseme) contributes 4 numbers and FAP 2 (expression) 6 to a value line when set; every
+other FAP one integer. The reader takes real-world files: comments and blank lines anywhere,
+trailing spaces, Windows line ends, a name with spaces (a path), frames that set only some FAPs.
+A malformed file is refused with its line number. Values are written as whole FAPU units, as the
+format has them; writing then reading a stream of whole values gives the same stream.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from faceanim.drivers.mpeg4 import FapStream
+from faceanim.errors import InputFileError
+from faceanim.face.faps import N_FAPS
+from faceanim.io.files import atomic_output
+
+VERSION = "2.1"
+
+
+def _number(token: str, path, line_no: int, what: str) -> float:
+    try:
+        value = float(token)
+    except ValueError:
+        raise InputFileError(f"{path}:{line_no}: {what} '{token}' is not a number") from None
+    if not np.isfinite(value):
+        raise InputFileError(f"{path}:{line_no}: {what} '{token}' is not a finite number")
+    return value
+
+
+def parse_fap(text: str, path: str = "<fap>") -> FapStream:
+    """A FAP stream from the text of an ASCII .fap file."""
+    lines = [(n, raw.strip()) for n, raw in enumerate(text.splitlines(), start=1)]
+    lines = [(n, s) for n, s in lines if s and not s.startswith("#")]
+    if not lines:
+        raise InputFileError(f"{path}: no header; a .fap file starts with '2.1 <name> <fps> <frames>'")
+    n0, header = lines[0]
+    tokens = header.split()
+    if len(tokens) < 4:
+        raise InputFileError(f"{path}:{n0}: the header needs '<version> <name> <fps> <frames>', got '{header}'")
+    fps = _number(tokens[-2], path, n0, "the frame rate")
+    count = _number(tokens[-1], path, n0, "the frame count")
+    if fps <= 0:
+        raise InputFileError(f"{path}:{n0}: the frame rate must be positive, got {tokens[-2]}")
+    if count < 0 or count != int(count):
+        raise InputFileError(f"{path}:{n0}: the frame count must be a whole number, got {tokens[-1]}")
+    count = int(count)
+    name = " ".join(tokens[1:-2])
+    body = lines[1:]
+    if len(body) % 2:
+        n, _ = body[-1]
+        raise InputFileError(f"{path}:{n}: a mask line without its value line (each frame has both)")
+    frames = len(body) // 2
+    if frames != count:
+        where = body[-1][0] if body else n0
+        raise InputFileError(f"{path}:{where}: the header promises {count} frames but the file has {frames}")
+    values = np.zeros((count, N_FAPS))
+    mask = np.zeros((count, N_FAPS), dtype=bool)
+    viseme = np.zeros((count, 4), dtype=np.int64)
+    expression = np.zeros((count, 6), dtype=np.int64)
+    numbers = np.zeros(count, dtype=np.int64)
+    for k in range(count):
+        (nm, mask_line), (nv, value_line) = body[2 * k], body[2 * k + 1]
+        bits = mask_line.split()
+        if len(bits) != N_FAPS:
+            raise InputFileError(f"{path}:{nm}: a mask line needs {N_FAPS} bits (one per FAP), got {len(bits)}")
+        if any(b not in ("0", "1") for b in bits):
+            raise InputFileError(f"{path}:{nm}: mask bits must be 0 or 1")
+        m = np.array([b == "1" for b in bits])
+        tokens = value_line.split()
+        expected = 1 + int(m.sum()) + (3 if m[0] else 0) + (5 if m[1] else 0)
+        if len(tokens) != expected:
+            raise InputFileError(f"{path}:{nv}: the mask on line {nm} sets {int(m.sum())} FAPs, so this line "
+                                 f"needs {expected} numbers (frame number first), got {len(tokens)}")
+        nums = [_number(t, path, nv, "value") for t in tokens]
+        numbers[k] = int(nums[0])
+        pos = 1
+        if m[0]:
+            viseme[k] = nums[pos:pos + 4]
+            pos += 4
+        if m[1]:
+            expression[k] = nums[pos:pos + 6]
+            pos += 6
+        rest = np.flatnonzero(m[2:]) + 2
+        values[k, rest] = nums[pos:]
+        mask[k] = m
+    return FapStream(values, mask, fps, name, viseme, expression, numbers)
+
+
+def read_fap(path: str | os.PathLike) -> FapStream:
+    """Read an ASCII .fap file."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(f".fap file '{p}' does not exist; check the path")
+    try:
+        text = p.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise InputFileError(f"cannot read '{p}': {exc.strerror}") from None
+    return parse_fap(text, str(p))
+
+
+def _fmt(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else repr(float(x))
+
+
+def format_fap(stream: FapStream, integers: bool = True) -> str:
+    """The text of an ASCII .fap file for ``stream``: FAP values rounded to whole FAPU units as
+    the format has them (``integers=False`` keeps fractions, which only faceanim reads back)."""
+    name = stream.name.strip() or "faceanim"
+    out = [f"{VERSION} {name} {_fmt(stream.fps)} {stream.n_frames}"]
+    for k in range(stream.n_frames):
+        m = stream.mask[k]
+        out.append(" ".join("1" if b else "0" for b in m))
+        nums = [str(int(stream.frame_numbers[k]))]
+        if m[0]:
+            nums += [str(int(x)) for x in stream.viseme[k]]
+        if m[1]:
+            nums += [str(int(x)) for x in stream.expression[k]]
+        values = stream.values[k, np.flatnonzero(m[2:]) + 2]
+        nums += [_fmt(x) for x in (np.rint(values) if integers else values)]
+        out.append(" ".join(nums))
+    return "\n".join(out) + "\n"
+
+
+def write_fap(path: str | os.PathLike, stream: FapStream, integers: bool = True) -> Path:
+    """Write ``stream`` as an ASCII .fap file (atomically); see :func:`format_fap`."""
+    with atomic_output(path) as tmp:
+        Path(tmp).write_text(format_fap(stream, integers), encoding="utf-8")
+    return Path(path)

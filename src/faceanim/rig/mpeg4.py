@@ -1,0 +1,307 @@
+"""FAPs deform a face: a FaceDefTable built automatically for any face (MPEG-4, section 4).
+
+For every translational FAP whose feature point the face has, the table holds the vertices it
+moves and one displacement per unit of the FAP's value: the FAP direction times FAPU / 1024 times
+a weight that is 1 near the feature point and falls off along the skin (a raised cosine of the
+surface distance, the falloff an open MPEG-4 player uses) within a radius set by the FAP's group.
+Lip and eyelid FAPs keep to their own side of the mouth or eye (a raised lower lip never lifts the
+upper one). The table is linear in the values, so each of these FAPs compiles to a blendshape and
+a FAP stream to one sparse product per frame (:class:`FapRig.evaluate`).
+
+Rotations are kept as rotations: the jaw (open_jaw turns the jaw about a hinge in front of the
+ears so that the chin, 2.1, drops by the FAP's amount; thrust_jaw and shift_jaw translate it),
+and the head (pitch, yaw, roll about 7.1). Eyeball rotations need eyeballs: a face mask without
+them reports these FAPs as unsupported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from faceanim.drivers.mpeg4 import FapStream
+from faceanim.face.faps import ANGLE_UNIT, N_FAPS, FapError, direction_vector, faps
+from faceanim.face.fdp import FeaturePoints, feature_points
+from faceanim.face.mesh import Mesh
+from faceanim.face.regions import graph_distance as _graph_distance
+from faceanim.face.regions import past_corners, skin, slit_sides, smoothstep
+from faceanim.rig.facs import default_library
+
+# influence radius of a FAP's feature point by FAP group: (factor, FAPU); within PLATEAU of the
+# radius the weight is 1 (a lid or brow moves as a piece), then it falls off as a raised cosine
+RADIUS = {2: (0.45, "MW"), 3: (0.4, "ES"), 4: (0.35, "ES"), 5: (0.35, "ES"), 8: (0.45, "MW"),
+          9: (0.25, "ES"), 10: (0.25, "ES")}
+PLATEAU = 0.3
+# feature points on one side of a slit: (slit, lower side?)
+SIDE = {"2.2": ("mouth", False), "2.6": ("mouth", False), "2.7": ("mouth", False), "8.1": ("mouth", False),
+        "8.5": ("mouth", False), "8.6": ("mouth", False), "8.9": ("mouth", False), "8.10": ("mouth", False),
+        "2.3": ("mouth", True), "2.8": ("mouth", True), "2.9": ("mouth", True), "8.2": ("mouth", True),
+        "8.7": ("mouth", True), "8.8": ("mouth", True),
+        "3.1": ("eye_L", False), "3.3": ("eye_L", True), "3.2": ("eye_R", False), "3.4": ("eye_R", True)}
+# feature points along one lip contour or brow: a FAP at one of them falls off to zero at its
+# neighbours (a raised cosine over the gap), so neighbouring FAPs share the skin between them like
+# hat functions and each feature point moves by its own FAP alone
+CHAINS = (("2.5", "2.7", "2.2", "2.6", "2.4"), ("2.5", "2.9", "2.3", "2.8", "2.4"),
+          ("8.4", "8.6", "8.1", "8.5", "8.3"), ("8.4", "8.8", "8.2", "8.7", "8.3"),
+          ("4.1", "4.3", "4.5"), ("4.2", "4.4", "4.6"))
+# values beyond these are clamped (and reported by check): past 4 FAPU a face folds over itself,
+# past half a turn a rotation means nothing new
+LIMIT_TRANSLATION = 4096.0
+LIMIT_ROTATION = 314159.0  # pi rad in AU
+# eyelid feature points: (brow above the eye, inner and outer eye corners). A lid moves as a
+# band along the eye (full between the corners' mid-height, fading out past the corners) and
+# not up into the brow
+LIDS = {"3.1": ("4.3", "3.11", "3.7"), "3.3": ("4.3", "3.11", "3.7"),
+        "3.2": ("4.4", "3.8", "3.12"), "3.4": ("4.4", "3.8", "3.12")}
+JAW_FAPS = (3, 14, 15)
+HEAD_FAPS = (48, 49, 50)
+EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)
+
+
+def _rot(axis: int, a: float) -> np.ndarray:
+    """Rotation by ``a`` radians about the x (0), y (1) or z (2) axis of the face frame."""
+    c, s = np.cos(a), np.sin(a)
+    if axis == 0:
+        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    if axis == 1:
+        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def _find_eyeballs(mesh: Mesh, fp: FeaturePoints, on_skin: np.ndarray) -> dict:
+    """Eyeballs modelled as separate parts: the round shells (not skin) around each pupil, turned
+    about the centre of the largest one. None for a face that has no eyeball there."""
+    labels = mesh.vertex_components
+    iod = fp.frame.iod
+    eyes = {}
+    for side, pupil in (("L", fp["3.5"]), ("R", fp["3.6"])):
+        rows, best, best_size = [], None, 0
+        for c in np.unique(labels[~on_skin]):
+            part = np.flatnonzero(labels == c)
+            centre = mesh.vertices[part].mean(0)
+            dist = np.linalg.norm(mesh.vertices[part] - centre, axis=1)
+            # an eyeball shell is round (sclera, cornea, iris): lashes and occlusion shells are not
+            round_ = len(part) >= 20 and dist.std() < 0.25 * dist.mean()
+            if round_ and np.linalg.norm(centre - pupil) < 0.35 * iod and dist.max() < 0.4 * iod:
+                rows.append(part)
+                if len(part) > best_size:
+                    best, best_size = centre, len(part)
+        eyes[side] = (np.concatenate(rows), best) if rows else None
+    return eyes
+
+
+def _limits() -> np.ndarray:
+    return np.array([LIMIT_ROTATION if f.is_rotation else LIMIT_TRANSLATION for f in faps()])
+
+
+def _falloff(d: np.ndarray, radius: float, plateau: float = PLATEAU) -> np.ndarray:
+    """1 within ``plateau`` * radius, then a raised cosine to 0 at the radius."""
+    t = np.clip((d / radius - plateau) / (1.0 - plateau), 0.0, 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * t))
+
+
+def _lid_band(mesh: Mesh, fp: FeaturePoints, lid: str, refs: tuple[str, str, str]) -> np.ndarray:
+    """Weight (V,) of the skin an eyelid FAP may move: along the eye between its corners, from
+    the lid up to halfway to the brow (upper lids) or as far below (lower lids)."""
+    frame = fp.frame
+    local = frame.to_local(mesh.vertices)
+    brow, inner, outer = (frame.to_local(fp[r]) for r in refs)
+    centre = frame.to_local(fp[lid])
+    along = 1 - past_corners(local[:, 0], np.array([inner[0], outer[0]]), 0.8, 0.5)
+    across = 1 - smoothstep(np.abs(local[:, 1] - centre[1]) / (0.5 * abs(brow[1] - centre[1])))
+    return along * across
+
+
+def _chain_gaps(fp: FeaturePoints) -> dict[str, float]:
+    """For each feature point on a chain, the distance to its nearest chain neighbour."""
+    gaps: dict[str, float] = {}
+    for chain in CHAINS:
+        if any(p not in fp.positions for p in chain):
+            continue
+        for k, p in enumerate(chain):
+            near = [chain[j] for j in (k - 1, k + 1) if 0 <= j < len(chain)]
+            d = min(float(np.linalg.norm(fp.positions[p] - fp.positions[q])) for q in near)
+            gaps[p] = min(gaps.get(p, np.inf), d)
+    return gaps
+
+
+@dataclass
+class FapRig:
+    """A face rigged for MPEG-4 FAPs: blendshapes per unit value, jaw and head rotations."""
+
+    mesh: Mesh
+    points: FeaturePoints
+    blendshapes: sp.csr_matrix  # (68, 3V): row n-1 = displacement per unit value of FAP n
+    supported: np.ndarray  # (68,) bool
+    unsupported: dict[int, str] = field(default_factory=dict)
+    jaw_weight: np.ndarray = None
+    jaw_pivot: np.ndarray = None
+    eyes: dict = field(default_factory=dict)  # 'L'/'R' -> (vertex rows, centre of rotation)
+    _bt: sp.csr_matrix = field(default=None, repr=False)
+    _jaw_rows: np.ndarray = field(default=None, repr=False)
+    _jaw_rel: np.ndarray = field(default=None, repr=False)
+
+    @classmethod
+    def build(cls, mesh: Mesh, lm478: np.ndarray) -> FapRig:
+        fp = feature_points(mesh, lm478)
+        frame = fp.frame
+        on_skin = skin(mesh, lm478)
+        sides = slit_sides(mesh, lm478, default_library())
+        eyes = _find_eyeballs(mesh, fp, on_skin)
+        rows, cols, vals = [], [], []
+        supported = np.zeros(N_FAPS, dtype=bool)
+        unsupported: dict[int, str] = {}
+        _, near = mesh.kdtree.query(np.stack([p for p in fp.positions.values()]))
+        vertex_of = dict(zip(fp.positions, near))
+        gaps = _chain_gaps(fp)
+        for f in faps():
+            n = f.number
+            if f.is_high_level:
+                supported[n - 1] = True  # visemes and expressions expand to low-level FAPs
+                continue
+            if n in HEAD_FAPS or n in JAW_FAPS:
+                supported[n - 1] = True
+                continue
+            if n in EYEBALL_FAPS or f.is_rotation:
+                if n in (23, 24, 25, 26) and eyes.get("L" if n in (23, 25) else "R") is not None:
+                    supported[n - 1] = True
+                else:
+                    unsupported[n] = "needs eyeballs (or a tongue) modelled as parts of the mesh"
+                continue
+            missing = [p for p in f.feature_points if p in fp.missing]
+            if missing:
+                unsupported[n] = f"feature point {missing[0]} ({fp.missing[missing[0]]}) is not on this face"
+                continue
+            unit = fp.unit(f.unit)
+            factor, unit_name = RADIUS.get(f.group, (0.3, "ES"))
+            radius = factor * fp.fapu[unit_name]
+            d = direction_vector(f) @ frame.rotation  # face frame -> mesh
+            for p in f.feature_points:
+                r, plateau = (min(radius, gaps[p]), 0.0) if p in gaps else (radius, PLATEAU)
+                dist = _graph_distance(mesh, np.array([vertex_of[p]]), limit=r)
+                w = np.where(np.isfinite(dist), _falloff(dist, r, plateau), 0.0) * on_skin
+                if p in SIDE:
+                    slit, lower = SIDE[p]
+                    w = w * (sides[slit] == lower)
+                if p in LIDS:
+                    w = w * _lid_band(mesh, fp, p, LIDS[p])
+                idx = np.flatnonzero(w > 1e-6)
+                for axis in range(3):
+                    rows.append(np.full(len(idx), n - 1))
+                    cols.append(3 * idx + axis)
+                    vals.append(w[idx] * d[axis] * unit)
+            supported[n - 1] = True
+        shapes = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                               shape=(N_FAPS, 3 * mesh.n_vertices))
+        # the jaw: between the mouth corners, the skin on the lower side of the mouth slit; past
+        # the corners, a smooth band across the level of the mouth (no seam across the cheeks);
+        # fading out towards the ears. Hinge in front of the ears, at the level of the nose tip.
+        local = frame.to_local(mesh.vertices)
+        lm = np.asarray(lm478)
+        corners = frame.to_local(lm[[61, 291]])
+        y_mouth = corners[:, 1].mean()
+        past = past_corners(local[:, 0], corners[:, 0], 0.6, 0.8)
+        below = smoothstep((y_mouth - local[:, 1]) / (0.35 * frame.iod) + 0.5)
+        inside = sides["mouth"].astype(float)
+        ear_x = abs(frame.to_local(lm[[234, 454]])[:, 0]).mean()
+        fade_side = np.clip((ear_x - np.abs(local[:, 0])) / (0.35 * frame.iod), 0.0, 1.0)
+        jaw = ((1 - past) * inside + past * below) * fade_side * on_skin
+        pivot_local = np.array([0.0, 0.0, frame.to_local(lm[[234, 454]])[:, 2].mean()])
+        pivot = frame.origin + pivot_local @ frame.rotation
+        return cls(mesh, fp, shapes, supported, unsupported, jaw, pivot, eyes)
+
+    @property
+    def lip_gap(self) -> float:
+        """The neutral face's gap between the inner lips (2.2 to 2.3) in MNS units (0 when closed)."""
+        fp = self.points
+        gap = fp.frame.to_local(fp["2.2"])[1] - fp.frame.to_local(fp["2.3"])[1]
+        return max(float(gap), 0.0) / fp.unit("MNS")
+
+    def check(self, stream: FapStream) -> list[str]:
+        """Warnings: FAPs the stream sets that this face cannot show, values that will be clamped."""
+        used = np.flatnonzero(stream.mask.any(axis=0)) + 1
+        out = [f"FAP {n} ({faps()[n - 1].name}): {self.unsupported[n]}" for n in used if n in self.unsupported]
+        vals = np.where(stream.mask, stream.values, 0.0)
+        limits = _limits()
+        over = np.flatnonzero((np.abs(vals) > limits).any(axis=0))
+        for idx in over:
+            f = faps()[idx]
+            out.append(f"FAP {f.number} ({f.name}): values up to {np.abs(vals[:, idx]).max():g} are clamped to "
+                       f"+-{limits[idx]:g}")
+        return out
+
+    def evaluate(self, stream: FapStream) -> np.ndarray:
+        """Vertices (F, V, 3) for a FAP stream (values where the mask is set, 0 elsewhere)."""
+        limits = _limits()
+        vals = np.clip(np.where(stream.mask, stream.values, 0.0), -limits, limits)
+        n_frames, v0 = len(vals), self.mesh.vertices
+        frame = self.points.frame
+        if self._bt is None:
+            self._bt = self.blendshapes.T.tocsr()
+            self._jaw_rows = np.flatnonzero(self.jaw_weight > 0)
+            self._jaw_rel = (v0[self._jaw_rows] - self.jaw_pivot) @ frame.rotation.T  # jaw-hinge frame
+        out = (self._bt @ vals.T).T.reshape(n_frames, -1, 3)
+        out += v0
+        jaw_frames = np.flatnonzero(np.abs(vals[:, [2, 13, 14]]).sum(1) > 0)
+        if len(jaw_frames):
+            mns, mw = self.points.unit("MNS"), self.points.unit("MW")
+            chin = frame.to_local(self.points["2.1"]) - frame.to_local(self.jaw_pivot)
+            rows, rel = self._jaw_rows, self._jaw_rel
+            open_, thrust, shift = (vals[jaw_frames, 2], vals[jaw_frames, 13], vals[jaw_frames, 14])
+            # turn about the hinge's x axis so that the chin (2.1) drops by open_jaw * MNS / 1024
+            angle = self._jaw_angle(open_ * mns, chin)
+            c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
+            d = np.empty((len(jaw_frames), len(rows), 3))
+            d[..., 0] = -(shift * mw)[:, None]  # shift_jaw + moves towards the face's right (-x)
+            d[..., 1] = c * rel[:, 1] - s * rel[:, 2] - rel[:, 1]
+            d[..., 2] = s * rel[:, 1] + c * rel[:, 2] - rel[:, 2] + (thrust * mns)[:, None]
+            moved = self.jaw_weight[rows, None] * (d @ frame.rotation)
+            for j, k in enumerate(jaw_frames):
+                out[k, rows] += moved[j]
+        for side, (yaw_i, pitch_i) in (("L", (22, 24)), ("R", (23, 25))):
+            eye = self.eyes.get(side)
+            if eye is None:
+                continue
+            rows, centre = eye
+            for k in np.flatnonzero(np.abs(vals[:, [yaw_i, pitch_i]]).sum(1) > 0):
+                r = frame.rotation.T @ _rot(1, vals[k, yaw_i] * ANGLE_UNIT) @ _rot(0, vals[k, pitch_i] * ANGLE_UNIT) \
+                    @ frame.rotation
+                out[k, rows] = (out[k, rows] - centre) @ r.T + centre
+        for k in np.flatnonzero(np.abs(vals[:, 47:50]).sum(1) > 0):
+            pitch, yaw, roll = vals[k, 47:50] * ANGLE_UNIT
+            out[k] = self._head(out[k], pitch, yaw, roll)
+        return out
+
+    @staticmethod
+    def _jaw_angle(drop: np.ndarray, chin: np.ndarray) -> np.ndarray:
+        """Hinge angles that lower the chin (at ``chin`` = (x, y, z) from the hinge) by ``drop``:
+        y (1 - cos a) + z sin a = drop, by Newton's method from drop / z."""
+        y, z = float(chin[1]), max(float(chin[2]), 1e-12)
+        a = np.asarray(drop, dtype=np.float64) / z
+        for _ in range(8):
+            f = y * (1 - np.cos(a)) + z * np.sin(a) - drop
+            a = a - f / (y * np.sin(a) + z * np.cos(a))
+        return np.clip(a, -np.pi / 3, np.pi / 3)
+
+    def _head(self, verts: np.ndarray, pitch: float, yaw: float, roll: float) -> np.ndarray:
+        """Rotate the head about 7.1: pitch + nods down, yaw + turns to the face's left, roll + to its right."""
+        frame = self.points.frame
+        rot = _rot
+        # face frame: x left, y up, z forward. A nod down (+pitch) about +x brings the gaze towards
+        # -y; a turn to the face's left (+yaw) about +y brings it towards +x; a roll to the face's
+        # right (+roll) about +z brings the top of the head towards -x
+        r_local = rot(1, yaw) @ rot(0, pitch) @ rot(2, roll)
+        r = frame.rotation.T @ r_local @ frame.rotation
+        pivot = self.points["7.1"]
+        return (verts - pivot) @ r.T + pivot
+
+    def blendshape(self, key) -> np.ndarray:
+        """(V, 3) displacement per unit value of a linear FAP."""
+        from faceanim.face.faps import fap
+
+        f = fap(key)
+        if f.number in JAW_FAPS or f.number in HEAD_FAPS or f.is_high_level:
+            raise FapError(f"FAP {f.number} ({f.name}) is a rotation or a high-level FAP, not a blendshape")
+        return self.blendshapes[f.number - 1].toarray().reshape(-1, 3)

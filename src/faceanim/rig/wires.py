@@ -1,0 +1,328 @@
+"""Wire curves on a face: the default set placed from landmarks, and expression templates.
+
+The default set (``data/wires.json``, 15 wires: brows, eyelids, lips, nasolabial folds,
+forehead, cheeks, chin, nose) follows Pyun, Shin & Shin's Figure 1: each reference curve is a
+cubic B-spline fitted by least squares through landmarks of the MediaPipe face mesh, with a
+range in inter-ocular distances, so it sits on any face whose landmarks are known.
+
+A *template* is an expression stored as its wires (wire control points, radial scales) over the
+reference curves of a base face: ``extract`` (eqs. 9-13) and ``rebuild`` are inverse of each other.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import lru_cache
+from importlib import resources
+
+import numpy as np
+
+from faceanim.deform.wires import (
+    BoundWires,
+    Curve,
+    Wire,
+    bind_wires,
+    clamped_knots,
+    extract_wires,
+)
+from faceanim.errors import DeformError, InputFileError
+from faceanim.face.frame import face_frame
+from faceanim.face.mesh import Mesh
+from faceanim.face.regions import past_corners, smoothstep
+from faceanim.io.files import read_json, write_json
+
+BLENDING_FUNCTIONS = {
+    "linear": lambda t: t,
+    "sqrt": np.sqrt,
+    "cubic": lambda t: t ** 3,
+    "square": lambda t: t ** 2,
+    "smooth": lambda t: smoothstep(t),
+}
+
+
+@lru_cache(maxsize=1)
+def default_wire_spec() -> dict:
+    return json.loads(resources.files("faceanim").joinpath("data", "wires.json").read_text())
+
+
+def fit_curve(points: np.ndarray, n_control: int) -> Curve:
+    """A clamped cubic B-spline with ``n_control`` control points fitted to a polyline (chord-length
+    parameters, least squares; the ends are interpolated)."""
+    from scipy.interpolate import BSpline
+
+    p = np.asarray(points, dtype=np.float64)
+    chord = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
+    if chord[-1] <= 0:
+        raise DeformError("the landmarks of a wire coincide; they cannot define a curve")
+    u = chord / chord[-1]
+    knots = clamped_knots(n_control)
+    b = BSpline.design_matrix(u, knots, 3).toarray()
+    control, *_ = np.linalg.lstsq(b, p, rcond=None)
+    control[0], control[-1] = p[0], p[-1]
+    return Curve(control)
+
+
+@dataclass
+class WireSet:
+    """Named wires on a base face with their groups, the localizing exponent k, and for wires
+    along a slit (lips, lids) the side they keep to: ``sides[j] = (slit, 'upper' | 'lower')``."""
+
+    wires: list[Wire]
+    groups: list[str]
+    k: float = 2.0
+    sides: list = field(default_factory=list)
+
+    @property
+    def names(self) -> list[str]:
+        return [w.name for w in self.wires]
+
+    def bind(self, mesh, lm478=None) -> BoundWires:
+        """Bind to a base face. Wires with a side keep to it when the face's landmarks are given
+        (the paper's wires are not limited: without landmarks they reach across the slit)."""
+        v = mesh.vertices if isinstance(mesh, Mesh) else np.asarray(mesh)
+        masks = None
+        if lm478 is not None and isinstance(mesh, Mesh) and any(self.sides):
+            from faceanim.face.regions import slit_sides
+            from faceanim.rig.facs import default_library
+
+            library = default_library()
+            lower = slit_sides(mesh, lm478, library)
+            frame = face_frame(lm478)
+            x = frame.to_local(v)[:, 0]
+            masks = []
+            for side in self.sides:
+                if not side:
+                    masks.append(None)
+                    continue
+                # the side matters between the slit's corners; beyond them both wires act, faded
+                # in over a fifth of the slit's width, so the skin past the corners has no seam
+                corner_x = frame.to_local(np.asarray(lm478)[list(library.slits[side[0]]["corners"])])[:, 0]
+                beyond = past_corners(x, corner_x, 1.0, 0.4)
+                own = lower[side[0]] == (side[1] == "lower")
+                masks.append(np.where(own, 1.0, beyond))
+        return bind_wires(v, self.wires, self.k, masks)
+
+
+def default_wires(lm478: np.ndarray, spec: dict | None = None) -> WireSet:
+    """The default wires placed from a face's 478 landmarks."""
+    spec = spec or default_wire_spec()
+    lm = np.asarray(lm478, dtype=np.float64)
+    iod = face_frame(lm).iod
+    wires, groups, sides = [], [], []
+    for d in spec["wires"]:
+        curve = fit_curve(lm[d["through"]], int(d["controls"]))
+        wires.append(Wire(curve, np.asarray(d["range"], dtype=np.float64) * iod, d["name"]))
+        groups.append(d.get("group", "other"))
+        sides.append(tuple(d["side"]) if d.get("side") else None)
+    return WireSet(wires, groups, float(spec.get("k", 2.0)), sides)
+
+
+@dataclass
+class WireTemplate:
+    """An expression as wires: the wire curves' control points and radial scales over a base
+    face's reference curves (the paper's compact template)."""
+
+    wireset: WireSet
+    controls: list[np.ndarray]
+    scales: np.ndarray
+    n_vertices: int
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def n_numbers(self) -> int:
+        """What the template costs once the base face's reference curves are known: the wire
+        control points and the scales."""
+        return sum(c.size for c in self.controls) + len(self.scales)
+
+    def to_dict(self) -> dict:
+        return {
+            "format": "faceanim wires 1", "n_vertices": int(self.n_vertices), "k": self.wireset.k,
+            "meta": self.meta,
+            "wires": [{"name": w.name, "group": g, "side": list(side) if side else None,
+                       "reference": w.reference.control.round(9).tolist(),
+                       "range": w.range.round(9).tolist(), "wire": c.round(9).tolist(), "scale": float(s)}
+                      for w, g, side, c, s in zip(self.wireset.wires, self.wireset.groups,
+                                                  self.wireset.sides or [None] * len(self.controls),
+                                                  self.controls, self.scales)],
+        }
+
+    def save(self, path) -> None:
+        write_json(path, self.to_dict())
+
+    @classmethod
+    def from_dict(cls, d, source: str = "wire file") -> WireTemplate:
+        try:
+            wires, groups, controls, scales, sides = [], [], [], [], []
+            for w in d["wires"]:
+                wires.append(Wire(Curve(np.asarray(w["reference"], dtype=np.float64)), w["range"], str(w["name"])))
+                groups.append(str(w.get("group", "other")))
+                sides.append(tuple(w["side"]) if w.get("side") else None)
+                c = np.asarray(w["wire"], dtype=np.float64)
+                if c.shape != wires[-1].reference.control.shape:
+                    raise DeformError(f"wire '{w['name']}' has {len(c)} wire control points for "
+                                      f"{wires[-1].reference.n_control} reference ones")
+                controls.append(c)
+                scales.append(float(w.get("scale", 1.0)))
+            return cls(WireSet(wires, groups, float(d.get("k", 2.0)), sides), controls, np.array(scales),
+                       int(d["n_vertices"]), dict(d.get("meta", {})))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputFileError(f"{source}: not a faceanim wire template ({exc!r})") from None
+
+    @classmethod
+    def load(cls, path) -> WireTemplate:
+        return cls.from_dict(read_json(path, "wire file"), str(path))
+
+    def rebuild(self, base: Mesh | np.ndarray, bound: BoundWires | None = None, lm478=None) -> np.ndarray:
+        """The template's vertices on ``base``: the wires applied to the base face."""
+        v = base.vertices if isinstance(base, Mesh) else np.asarray(base)
+        if len(v) != self.n_vertices:
+            raise DeformError(f"this template was extracted on a base face with {self.n_vertices} vertices; "
+                              f"this mesh has {len(v)}")
+        bound = bound or self.wireset.bind(base, lm478)
+        return bound.apply(self.controls, self.scales)
+
+
+def extract_template(base: Mesh, template: Mesh, wireset: WireSet, bound: BoundWires | None = None,
+                     lm478=None) -> WireTemplate:
+    """Fit the wires of ``wireset`` to an expression template of the same topology (eqs. 9-13)."""
+    if template.n_vertices != base.n_vertices or not np.array_equal(template.faces, base.faces):
+        raise DeformError(f"'{template.name}' has another topology than the base '{base.name}' "
+                          f"({template.n_vertices} vs {base.n_vertices} vertices); wire extraction needs "
+                          "the same vertices in the same order")
+    bound = bound or wireset.bind(base, lm478)
+    controls, scales = extract_wires(bound, template.vertices)
+    return WireTemplate(wireset, controls, scales, base.n_vertices, {"template": template.name})
+
+
+def align_template(base: Mesh, template: Mesh, lm478: np.ndarray) -> Mesh:
+    """``template`` rigidly aligned to ``base`` on the skull (scans differ in head pose); a face
+    mask without a skull is aligned on bony landmarks."""
+    from faceanim.face.frame import rigid_align
+    from faceanim.face.landmarks import STABLE_LANDMARKS
+    from faceanim.rig.transfer import points_on_landmarks, skull_vertices
+
+    if template.n_vertices != base.n_vertices:
+        raise DeformError(f"'{template.name}' has {template.n_vertices} vertices, the base '{base.name}' "
+                          f"{base.n_vertices}; wire extraction needs the same topology")
+    stable = skull_vertices(base, lm478, face_frame(lm478))
+    if len(stable):
+        r, t = rigid_align(template.vertices[stable], base.vertices[stable])
+    else:
+        idx = list(STABLE_LANDMARKS)
+        r, t = rigid_align(points_on_landmarks(template, base, lm478)[idx], np.asarray(lm478)[idx])
+    return template.with_vertices(template.vertices @ r.T + t)
+
+
+def blend(a: WireTemplate, b: WireTemplate, t: float, group_functions: dict[str, str] | None = None) -> WireTemplate:
+    """Feature-wise non-uniform blending (section 5): each wire moves from a to b by g(t) of its
+    group (``{'eyes': 'sqrt', 'mouth': 'cubic'}``; other groups linear)."""
+    if a.wireset.names != b.wireset.names or a.n_vertices != b.n_vertices:
+        raise DeformError("the two templates were extracted with different wires or on different base faces")
+    funcs = group_functions or {}
+    controls, scales = [], []
+    for j, group in enumerate(a.wireset.groups):
+        g = blending_function(funcs.get(group, "linear"))(float(t))
+        controls.append(a.controls[j] + g * (b.controls[j] - a.controls[j]))
+        scales.append(a.scales[j] + g * (b.scales[j] - a.scales[j]))
+    return WireTemplate(a.wireset, controls, np.array(scales), a.n_vertices, {"blend": float(t)})
+
+
+def blending_function(name: str):
+    """A named blending curve g(t) on [0, 1] (linear, sqrt, cubic, square, smooth) or a
+    comma list of samples g(0), ..., g(1) for a user curve (linear between samples)."""
+    if name in BLENDING_FUNCTIONS:
+        return BLENDING_FUNCTIONS[name]
+    try:
+        ys = np.array([float(x) for x in str(name).split(",")])
+    except ValueError:
+        raise DeformError(f"unknown blending function '{name}'; use one of {', '.join(BLENDING_FUNCTIONS)} "
+                          "or samples like 0,0.1,0.5,1") from None
+    if len(ys) < 2 or not np.all(np.isfinite(ys)):
+        raise DeformError(f"a blending curve needs at least two finite samples, got '{name}'")
+    xs = np.linspace(0.0, 1.0, len(ys))
+    return lambda t: np.interp(t, xs, ys)
+
+
+GROUP_COLOURS = {"brows": (255, 170, 0), "eyes": (0, 200, 255), "mouth": (255, 60, 60), "cheeks": (120, 255, 120),
+                 "nose": (255, 255, 0), "other": (255, 255, 255)}
+
+
+def render_wires(mesh: Mesh, wireset: WireSet, vertices=None, controls=None, size: int = 768,
+                 frame_vertices=None) -> np.ndarray:
+    """A frontal picture of the face with its wire curves drawn over it (colour by group) and
+    their control points as dots; ``controls`` draws wire curves instead of the references;
+    ``frame_vertices`` sets the framing (e.g. the face of a full head)."""
+    import cv2
+
+    from faceanim.render import OffscreenRenderer
+
+    with OffscreenRenderer(mesh, size=(size, size), parallel=True, frame_vertices=frame_vertices,
+                           margin=1.15) as r:
+        img = np.ascontiguousarray(r.render(vertices))
+        for j, (w, g) in enumerate(zip(wireset.wires, wireset.groups)):
+            curve = w.reference if controls is None else Curve(controls[j])
+            pts = (r.project(curve(np.linspace(0, 1, 120))) * size).astype(np.int32)
+            colour = GROUP_COLOURS.get(g, GROUP_COLOURS["other"])
+            cv2.polylines(img, [pts.reshape(-1, 1, 2)], False, colour, 2, cv2.LINE_AA)
+            for x, y in (r.project(curve.control) * size).astype(int):
+                cv2.circle(img, (int(x), int(y)), 4, colour, -1, cv2.LINE_AA)
+    return img
+
+
+def blend_blendshapes(a: WireTemplate, b: WireTemplate, bound: BoundWires) -> dict[str, np.ndarray]:
+    """The blend from ``a`` to ``b`` as blendshapes: ``from`` (template a) plus one per feature
+    group (its wires' share of b - a). Wire deformation is linear in the wires once the reference
+    curves are fixed, so ``from + sum_g g_g(t) * group_g`` is exactly the blended template at t."""
+    if a.wireset.names != b.wireset.names:
+        raise DeformError("the two templates were extracted with different wires")
+    op = bound.deformer()
+    shapes = {"from": op.displacements(bound.offsets(a.controls, a.scales))}
+    delta_controls = [cb - ca + w.reference.control for ca, cb, w in zip(a.controls, b.controls, a.wireset.wires)]
+    for group in dict.fromkeys(a.wireset.groups):
+        sel = [j for j, g in enumerate(a.wireset.groups) if g == group]
+        controls = [delta_controls[j] if j in sel else w.reference.control for j, w in enumerate(a.wireset.wires)]
+        scales = np.array([1.0 + (b.scales[j] - a.scales[j]) if j in sel else 1.0 for j in range(len(a.scales))])
+        shapes[group] = op.displacements(bound.offsets(controls, scales))
+    return shapes
+
+
+def parse_edits(spec, wireset: WireSet) -> tuple[dict[int, list[tuple[int, np.ndarray]]], dict[int, float]]:
+    """Edits from JSON: ``{"edits": [{"wire": "upper_lip", "control": 3, "offset": [dx, dy, dz]},
+    {"wire": "brow_L", "scale": 1.2}]}`` -> moves per wire index, scales per wire index."""
+    if not isinstance(spec, dict) or not isinstance(spec.get("edits"), list):
+        raise InputFileError('an edit file holds {"edits": [{"wire": name, "control": i, "offset": [dx, dy, dz]}, ...]}')
+    moves: dict[int, list] = {}
+    scales: dict[int, float] = {}
+    for n, e in enumerate(spec["edits"]):
+        if not isinstance(e, dict) or e.get("wire") not in wireset.names:
+            raise InputFileError(f"edit {n}: unknown wire {e.get('wire') if isinstance(e, dict) else e!r}; "
+                                 f"the wires are {', '.join(wireset.names)}")
+        j = wireset.names.index(e["wire"])
+        if "scale" in e:
+            s = float(e["scale"])
+            if not np.isfinite(s):
+                raise InputFileError(f"edit {n}: the scale must be a finite number")
+            scales[j] = s
+        if "control" in e:
+            i = int(e["control"])
+            if not 0 <= i < wireset.wires[j].reference.n_control:
+                raise InputFileError(f"edit {n}: wire '{e['wire']}' has control points 0.."
+                                     f"{wireset.wires[j].reference.n_control - 1}, not {i}")
+            off = np.asarray(e.get("offset"), dtype=np.float64)
+            if off.shape != (3,) or not np.all(np.isfinite(off)):
+                raise InputFileError(f"edit {n}: 'offset' must be [dx, dy, dz]")
+            moves.setdefault(j, []).append((i, off))
+    return moves, scales
+
+
+def edit_template(t: WireTemplate, moves, scales) -> WireTemplate:
+    """A copy of ``t`` with wire control points moved and scales set (local editing)."""
+    controls = [c.copy() for c in t.controls]
+    s = t.scales.copy()
+    for j, items in moves.items():
+        for i, off in items:
+            controls[j][i] += off
+    for j, value in scales.items():
+        s[j] = value
+    return WireTemplate(t.wireset, controls, s, t.n_vertices, dict(t.meta, edited=True))

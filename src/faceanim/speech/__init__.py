@@ -1,7 +1,0 @@
-"""Speech: timed phonemes from text (synthesized with espeak-ng) or from recorded speech and its
-transcript (forced alignment with pocketsphinx), and co-articulated visemes."""
-
-from .phonemes import Phone, align, load_wav, say_timed, synthesize
-from .visemes import phone_viseme, viseme_actions
-
-__all__ = ["Phone", "align", "load_wav", "phone_viseme", "say_timed", "synthesize", "viseme_actions"]
