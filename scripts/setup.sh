@@ -1,39 +1,240 @@
 #!/usr/bin/env bash
-# Set up faceanim on a fresh Debian/Ubuntu machine: system libraries for offscreen OpenGL
-# (Mesa's EGL, used by VTK to render without a display), espeak-ng (speech synthesis for lip
-# sync), Node.js for the glTF validator used by the tests, a virtual environment in .venv with
-# faceanim installed from this checkout.
-# Safe to run again: it only installs what is missing.
+# Set up faceanim on a fresh Debian/Ubuntu machine. Safe to run again: it installs only what is
+# missing, and prints a line per thing it installs.
+#
+#   system packages (apt-get, decided one need at a time, each need in its own apt-get call):
+#     Mesa EGL/GL (offscreen rendering: EGL with Mesa's llvmpipe) and libGL/GLib for opencv
+#       (mediapipe): libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri libglx-mesa0 libgbm1, libglib2.0-0
+#     espeak-ng (speech synthesis), optional
+#     Node.js with npm (the glTF validator used by a test), optional: Debian's `nodejs npm` only
+#       when neither node nor npm exists (NodeSource's nodejs carries its own npm, and Debian's
+#       npm conflicts with it)
+#     python3 with venv, required, only when there is no usable .venv and no usable python3
+#   .venv: a virtual environment with faceanim installed from this checkout (required)
+#   tools/node_modules: the Khronos glTF validator, with npm (optional)
+#
+# A required part that cannot be had stops the script with an error; an optional one prints one
+# note saying what will be skipped, and the script goes on.
+#
+# FACEANIM_SETUP_SYSTEM_ONLY=1 (or --system-only) stops after the system packages (for tests).
+# PYTHON=... picks the interpreter for a new .venv (default python3).
 set -euo pipefail
+
+system_only=${FACEANIM_SETUP_SYSTEM_ONLY:-0}
+for arg in "$@"; do
+  case $arg in
+    --system-only) system_only=1 ;;
+    -h | --help) echo "usage: bash scripts/setup.sh [--system-only]"; exit 0 ;;
+    *) echo "setup: error: unknown argument: $arg (usage: bash scripts/setup.sh [--system-only])" >&2; exit 2 ;;
+  esac
+done
+
 cd "$(dirname "$0")/.."
 
-need_apt=()
-for lib in libEGL.so.1 libGL.so.1 libEGL_mesa.so.0; do
-  ldconfig -p 2>/dev/null | grep -q "$lib" || need_apt+=("$lib")
-done
-command -v node >/dev/null 2>&1 || need_apt+=(node)
-command -v espeak-ng >/dev/null 2>&1 || need_apt+=(espeak-ng)
-if [ ${#need_apt[@]} -gt 0 ]; then
-  if command -v apt-get >/dev/null 2>&1; then
-    sudo=""; [ "$(id -u)" -ne 0 ] && sudo="sudo"
-    echo "setup: installing Debian packages (missing: ${need_apt[*]})"
-    $sudo apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq \
-      libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri libglx-mesa0 nodejs npm espeak-ng >/dev/null
-  else
-    echo "setup: please install Mesa's EGL/GL libraries, Node.js and espeak-ng (missing: ${need_apt[*]})" >&2
+say() { echo "setup: $*"; }
+note() { echo "setup: note: $*" >&2; }
+die() { echo "setup: error: $*" >&2; exit 1; }
+have() { command -v "$1" >/dev/null 2>&1; }
+
+PY=${PYTHON:-python3}
+
+# ---------------------------------------------------------------------------------------------
+# What is missing. Each need: a name, its Debian packages, whether it is required, and what is
+# lost without it.
+# ---------------------------------------------------------------------------------------------
+need_names=() need_pkgs=() need_required=() need_loss=()
+need() { need_names+=("$1"); need_pkgs+=("$2"); need_required+=("$3"); need_loss+=("$4"); }
+
+# The dynamic linker's cache (ldconfig is in /sbin, which a user's PATH may lack).
+ldconfig_bin=$(command -v ldconfig 2>/dev/null || true)
+if [ -z "$ldconfig_bin" ]; then
+  for p in /sbin/ldconfig /usr/sbin/ldconfig; do
+    if [ -x "$p" ]; then ldconfig_bin=$p; break; fi
+  done
+fi
+libcache=""
+if [ -n "$ldconfig_bin" ]; then libcache=$("$ldconfig_bin" -p 2>/dev/null || true); fi
+# The path the dynamic linker cache gives for a library (soname), or nothing.
+lib_path() {
+  local line
+  while IFS= read -r line; do
+    line=${line#"${line%%[![:space:]]*}"}
+    if [ "${line%% *}" = "$1" ] && [[ $line == *" => "* ]]; then
+      echo "${line##* => }"
+      return 0
+    fi
+  done <<<"$libcache"
+  return 1
+}
+has_lib() { lib_path "$1" >/dev/null; }
+# Mesa's DRI drivers (swrast_dri.so, llvmpipe) are not in the linker cache: look beside Mesa's
+# libraries, in their dri/ folder (newer Mesa also puts libgallium-*.so in the cache).
+has_mesa_dri() {
+  local lib dir
+  [[ $libcache == *libgallium* ]] && return 0
+  for lib in libEGL_mesa.so.0 libGLX_mesa.so.0 libgbm.so.1 libglapi.so.0; do
+    dir=$(lib_path "$lib") || continue
+    dir=${dir%/*}
+    [ -e "$dir/dri/swrast_dri.so" ] && return 0
+    [[ $dir == /lib/* ]] && [ -e "/usr$dir/dri/swrast_dri.so" ] && return 0
+  done
+  return 1
+}
+
+gl_pkgs=()
+has_lib libEGL.so.1 || gl_pkgs+=(libegl1)
+has_lib libGL.so.1 || gl_pkgs+=(libgl1)
+has_lib libEGL_mesa.so.0 || gl_pkgs+=(libegl-mesa0)
+has_lib libGLX_mesa.so.0 || gl_pkgs+=(libglx-mesa0)
+has_lib libgbm.so.1 || gl_pkgs+=(libgbm1)
+has_mesa_dri || gl_pkgs+=(libgl1-mesa-dri)
+[ ${#gl_pkgs[@]} -eq 0 ] \
+  || need "Mesa EGL/GL" "${gl_pkgs[*]}" 0 "offscreen rendering (faceanim demo, the render tests) will fail"
+{ has_lib libglib-2.0.so.0 && has_lib libgthread-2.0.so.0; } \
+  || need "GLib" libglib2.0-0 0 "opencv (mediapipe landmarks) may fail to import"
+
+have espeak-ng \
+  || need espeak-ng espeak-ng 0 "speech synthesis (faceanim say TEXT) and its tests will be skipped"
+
+node_note=""
+if have node && have npm; then
+  :
+elif have node; then
+  node_note="node is here but npm is not (Debian's npm is not installed beside another Node.js: it conflicts with NodeSource's nodejs, which carries its own npm); the glTF validator and its test will be skipped"
+elif have npm; then
+  node_note="npm is here but node is not (Debian's nodejs is not installed beside another npm); the glTF validator and its test will be skipped"
+else
+  need "Node.js/npm" "nodejs npm" 0 "the glTF validator (tools/) and its test will be skipped"
+fi
+
+if [ ! -x .venv/bin/python ] || ! .venv/bin/python -c '' >/dev/null 2>&1; then
+  py_path=$(command -v "$PY" 2>/dev/null || true)
+  if [ -z "$py_path" ]; then
+    [ "$PY" = python3 ] && need "python3 with venv" "python3 python3-venv" 1 ""
+  elif ! "$py_path" -c 'import venv, ensurepip' >/dev/null 2>&1; then
+    # Debian splits venv's pip (ensurepip) into python3-venv; it only helps Debian's python3.
+    case $(readlink -f "$py_path" 2>/dev/null || echo "$py_path") in
+      /usr/bin/python3*) need "python3 with venv" python3-venv 1 "" ;;
+    esac
   fi
 fi
 
-PY=${PYTHON:-python3}
-if [ ! -x .venv/bin/python ]; then
-  "$PY" -m venv .venv
-fi
-.venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e '.[test]'
+# ---------------------------------------------------------------------------------------------
+# Install them: apt-get update once, then one apt-get install per need (and, if that fails, one
+# per package), so that one conflict does not sink the rest.
+# ---------------------------------------------------------------------------------------------
+if [ ${#need_names[@]} -gt 0 ]; then
+  all_pkgs=$(printf '%s ' "${need_pkgs[@]}")
+  all_pkgs=${all_pkgs% }
+  apt_prefix=()
+  why_not=""
+  if ! have apt-get; then
+    why_not="there is no apt-get here"
+  elif [ "$(id -u)" -ne 0 ]; then
+    if have sudo; then
+      apt_prefix=(sudo)
+      [ -t 0 ] || apt_prefix+=(-n)  # no terminal to ask for a password on: fail, don't hang
+    else
+      why_not="not root and there is no sudo"
+    fi
+  fi
 
-if command -v npm >/dev/null 2>&1 && [ ! -d tools/node_modules/gltf-validator ]; then
-  npm install --prefix tools --no-audit --no-fund --silent >/dev/null 2>&1 \
-    || echo "setup: could not install the glTF validator; its test will be skipped" >&2
+  required_failed=0
+  failed=()  # indices of needs that could not be installed
+  if [ -n "$why_not" ]; then
+    note "$why_not; please install these Debian packages (or their equivalents): $all_pkgs"
+    for i in "${!need_names[@]}"; do failed+=("$i"); done
+  else
+    apt() {
+      if [ ${#apt_prefix[@]} -gt 0 ]; then
+        "${apt_prefix[@]}" DEBIAN_FRONTEND=noninteractive apt-get "$@"
+      else
+        DEBIAN_FRONTEND=noninteractive apt-get "$@"
+      fi
+    }
+    # apt-get's last error line (e.g. "E: ... you have held broken packages."), else its last line.
+    apt_error() {
+      local line last="" err=""
+      while IFS= read -r line; do
+        [ -z "$line" ] || last=$line
+        case $line in E:* | Err:*) err=$line ;; esac
+      done <<<"$1"
+      echo "${err:-$last}"
+    }
+    if ! out=$(apt update -qq 2>&1); then
+      echo "setup: apt-get update failed (trying to install anyway): $(apt_error "$out")" >&2
+    fi
+    for i in "${!need_names[@]}"; do
+      read -r -a pkgs <<<"${need_pkgs[$i]}"
+      say "installing ${need_names[$i]} (${pkgs[*]})"
+      if out=$(apt install -y -qq "${pkgs[@]}" 2>&1); then
+        continue
+      fi
+      if [ ${#pkgs[@]} -eq 1 ]; then
+        echo "setup: apt-get install ${pkgs[0]} failed: $(apt_error "$out")" >&2
+        failed+=("$i")
+        continue
+      fi
+      # Try each package on its own: install what can be installed.
+      bad=()
+      for p in "${pkgs[@]}"; do
+        if ! out=$(apt install -y -qq "$p" 2>&1); then
+          echo "setup: apt-get install $p failed: $(apt_error "$out")" >&2
+          bad+=("$p")
+        fi
+      done
+      if [ ${#bad[@]} -gt 0 ]; then
+        need_pkgs[$i]="${bad[*]}"
+        failed+=("$i")
+      fi
+    done
+    hash -r
+  fi
+
+  for i in "${failed[@]+"${failed[@]}"}"; do
+    if [ "${need_required[$i]}" = 1 ]; then
+      # the Python step below stops with what it cannot do
+      echo "setup: could not install ${need_pkgs[$i]} (${need_names[$i]}), which faceanim needs" >&2
+      required_failed=1
+    elif [ "${need_names[$i]}" = "Node.js/npm" ]; then
+      # part of it may have been installed
+      if ! { have node && have npm; }; then
+        note "could not install ${need_pkgs[$i]}; ${need_loss[$i]}"
+      fi
+    else
+      note "could not install ${need_pkgs[$i]}; ${need_loss[$i]}"
+    fi
+  done
 fi
-echo "setup: ready (.venv)"
+[ -z "$node_note" ] || note "$node_note"
+
+if [ "$system_only" = 1 ]; then
+  [ "${required_failed:-0}" = 0 ] || die "a required system package could not be installed (see above)"
+  exit 0
+fi
+
+# ---------------------------------------------------------------------------------------------
+# Python: .venv with faceanim and its test dependencies (required).
+# ---------------------------------------------------------------------------------------------
+if [ ! -x .venv/bin/python ] || ! .venv/bin/python -c '' >/dev/null 2>&1; then
+  have "$PY" || die "$PY was not found; faceanim needs Python 3.11 or newer with venv and pip (Debian: apt-get install python3 python3-venv), or set PYTHON=/path/to/python3.11"
+  "$PY" -c 'import sys; sys.exit(sys.version_info < (3, 11))' \
+    || die "$PY is Python $("$PY" -c 'import sys; print("%d.%d" % sys.version_info[:2])'); faceanim needs 3.11 or newer (set PYTHON=/path/to/python3.11)"
+  "$PY" -c 'import venv, ensurepip' >/dev/null 2>&1 \
+    || die "$PY has no venv/ensurepip (Debian: apt-get install python3-venv)"
+  say "creating .venv with $PY"
+  "$PY" -m venv .venv || die "could not create .venv with $PY -m venv (if .venv is left from another Python, remove it and run again)"
+  .venv/bin/python -m pip install -q --upgrade pip || note "could not upgrade pip in .venv; going on with its own"
+fi
+.venv/bin/python -m pip install -q -e '.[test]' \
+  || die "pip could not install faceanim and its test dependencies into .venv (.venv/bin/python -m pip install -e '.[test]'); see pip's messages above"
+
+# ---------------------------------------------------------------------------------------------
+# The Khronos glTF validator (optional), pinned in tools/package.json.
+# ---------------------------------------------------------------------------------------------
+if [ ! -d tools/node_modules/gltf-validator ] && have node && have npm; then
+  say "installing the glTF validator into tools/ (npm)"
+  npm install --prefix tools --no-audit --no-fund --silent >/dev/null 2>&1 \
+    || note "could not install the glTF validator (npm install --prefix tools); its test will be skipped"
+fi
+say "ready (.venv)"
