@@ -1,0 +1,64 @@
+"""Ranges every input is checked against before anything is allocated.
+
+A few small numbers on a command line (``--fps 1e9``, ``--size 100000``, a scene that repeats a
+blink every 0.3 s for 1e9 s) would otherwise ask for terabytes. Each limit is far above what a
+real use needs and far below what exhausts a machine of a few GB; the CLI's help states them.
+"""
+
+from __future__ import annotations
+
+import math
+
+from faceanim.errors import FaceAnimError
+
+MAX_FPS = 240.0  # frames per second of any animation or video
+MIN_IMAGE_SIZE = 16  # pixels per side of a render
+MAX_IMAGE_SIZE = 4096
+MAX_DURATION = 3600.0  # seconds of animation (one hour)
+MAX_FRAMES = 200_000  # frames of one animation (an hour at 55 fps; a glTF of a 30k face at 200k frames
+#                       is already ~24 MB of weights alone)
+MAX_GRID = 1000  # vertices per side of a resampling grid (10^6 vertices)
+MAX_ACTIONS = 100_000  # actions on one timeline (visemes, blinks, expressions)
+MAX_NESTING = 8  # groups inside groups in a scene script
+MAX_TEXT = 10_000  # characters of text to speak
+
+
+class LimitError(FaceAnimError):
+    """A number outside the range faceanim accepts."""
+
+
+def check_range(value, name: str, low: float, high: float, *, integer: bool = False,
+                low_inclusive: bool = True) -> float:
+    """``value`` as a float (or int) if it is finite and within [low, high]; else a LimitError
+    that names the option and the range."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise LimitError(f"{name} must be a number, got '{value}'") from None
+    if not math.isfinite(v):
+        raise LimitError(f"{name} must be a finite number, got {value}")
+    below = v < low if low_inclusive else v <= low
+    if below or v > high:
+        lo = f"at least {low:g}" if low_inclusive else f"more than {low:g}"
+        raise LimitError(f"{name} must be {lo} and at most {high:g}, got {v:g}")
+    if integer:
+        if v != int(v):
+            raise LimitError(f"{name} must be a whole number, got {v:g}")
+        return int(v)
+    return v
+
+
+def check_fps(fps, name: str = "--fps") -> float:
+    return check_range(fps, name, 0.0, MAX_FPS, low_inclusive=False)
+
+
+def check_size(size, name: str = "--size") -> int:
+    return check_range(size, name, MIN_IMAGE_SIZE, MAX_IMAGE_SIZE, integer=True)
+
+
+def check_duration(seconds, name: str = "duration") -> float:
+    return check_range(seconds, name, 0.0, MAX_DURATION)
+
+
+def check_frames(n, name: str = "frames") -> int:
+    return check_range(n, name, 1, MAX_FRAMES, integer=True)
