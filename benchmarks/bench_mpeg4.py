@@ -35,7 +35,7 @@ def main():
     t_tts = time.perf_counter() - t
     t = time.perf_counter()
     for _ in range(10):
-        stream = speech_stream(rig, phones, 25.0)
+        stream = speech_stream(rig.lip_gap, phones, 25.0)
     t_stream = (time.perf_counter() - t) / 10
     speech = phones[-1].end
     singles = [FapStream(stream.values[k:k + 1], stream.mask[k:k + 1], 25.0) for k in range(stream.n_frames)]

@@ -65,7 +65,7 @@ def main(argv=None):
                     errs.append(t[frames[0]] - a.extra["phone_start"])
             prev = v
         start = time.perf_counter()
-        stream = speech_stream(rig, phones, args.fps)
+        stream = speech_stream(rig.lip_gap, phones, args.fps)
         verts = rig.evaluate(stream)
         anim_s += time.perf_counter() - start
         audio_s += phones[-1].end

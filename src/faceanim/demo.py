@@ -21,7 +21,7 @@ from faceanim.drivers.keyframes import expression_tour
 from faceanim.face.default import default_face, default_landmarks
 from faceanim.io.gltf import write_gltf
 from faceanim.render import OffscreenRenderer, save_png, write_video
-from faceanim.rig.expressions import Expression
+from faceanim.rig.expressions import Expression, expression_rig
 from faceanim.rig.rig import Rig
 
 
@@ -71,9 +71,9 @@ def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = 30.0, size: int
     out.mkdir(parents=True, exist_ok=True)
     mesh = default_face()
     lm = default_landmarks(mesh)
-    shapes = Rig.from_expressions(mesh, demo_expressions(lm)).blendshape_dict()
+    shapes = expression_rig(mesh, demo_expressions(lm)).blendshape_dict()
     shapes.update(emotion_blendshapes(mesh, lm))
-    rig = Rig(mesh, shapes)
+    rig = Rig.from_blendshapes(mesh, shapes)
     tour = expression_tour(rig.names)
     times, weights = tour.sample(fps)
     written = [write_gltf(out / "demo.glb", mesh, rig.blendshape_dict(), times, weights)]

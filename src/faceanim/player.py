@@ -1,69 +1,84 @@
-"""Playing FAP streams on a face: speech to FAPs, FAP streams to MP4 (with sound) or glTF."""
+"""Players: any Rig and its control curves to MP4 (with sound) or glTF, and FAP streams on a FapRig.
+
+The writers take a :class:`~faceanim.rig.rig.Rig` and an (F, C) matrix of control curves, whatever
+built the rig (expressions, action units, FAPs, wires) and whatever drove the curves (key frames,
+a FAP stream, speech, a scene script).
+"""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from faceanim.drivers.mpeg4 import Action, FapStream, blend_actions
+from faceanim.errors import FaceAnimError
+from faceanim.face.landmarks import FACE_OVAL
+from faceanim.io.gltf import write_gltf
+from faceanim.render import OffscreenRenderer, write_video
 from faceanim.rig.mpeg4 import FapRig
+from faceanim.rig.rig import Rig
+
+CHUNK = 64  # frames evaluated at once while rendering (bounded memory for long clips)
 
 
-def speech_stream(rig: FapRig, phones, fps: float = 25.0, extra: list[Action] | None = None,
+def face_view(lm478) -> dict:
+    """Render framing on the face: the landmark face oval with a margin (full heads render small
+    otherwise)."""
+    return {"frame_vertices": np.asarray(lm478)[list(FACE_OVAL)], "margin": 1.3}
+
+
+def frames_of(rig: Rig, curves: np.ndarray, chunk: int = CHUNK) -> Iterator[np.ndarray]:
+    """Vertices frame by frame, evaluated ``chunk`` frames at a time."""
+    for a in range(0, len(curves), chunk):
+        yield from rig.evaluate(curves[a:a + chunk])
+
+
+def render_curves(rig: Rig, curves: np.ndarray, path, fps: float, lm478=None, size: int = 512, audio=None,
+                  progress=None, yaw: float = 8.0, pitch: float = 3.0) -> Path:
+    """Render a rig driven by (F, C) curves to an MP4 (with the WAV ``audio`` as its sound)."""
+    view = face_view(lm478) if lm478 is not None else {}
+    with OffscreenRenderer(rig.mesh, size=(size, size), yaw=yaw, pitch=pitch, **view) as r:
+        frames = (r.render(v) for v in frames_of(rig, curves))
+        return write_video(path, frames, fps=fps, audio=audio, progress=progress)
+
+
+def write_rig_gltf(rig: Rig, curves: np.ndarray, path, fps: float, name: str = "animation",
+                   names=None, **options) -> Path:
+    """A rig and its curves as glTF: one morph target per control the curves use (named by the
+    control), weighted by the curve scaled to [-1, 1]. Linear controls are exact; rigid parts (jaw,
+    eyes, head) are linearised at the neutral pose with their exact derivative (exact for small
+    angles; the MP4 keeps true rotations)."""
+    shapes, weights = rig.morph_targets(curves, names)
+    if not shapes:
+        raise FaceAnimError("the animation moves no control of this face")
+    times = np.arange(len(weights)) / fps
+    return write_gltf(path, rig.mesh, shapes, times=times, weights=weights, animation_name=name, **options)
+
+
+def speech_stream(lip_gap: float, phones, fps: float = 25.0, extra: list[Action] | None = None,
                   name: str = "speech") -> FapStream:
-    """A FAP stream for timed phones (co-articulated visemes), plus any other actions."""
+    """A FAP stream for timed phones (co-articulated visemes), plus any other actions.
+    ``lip_gap``: the face's neutral gap between the inner lips in MNS (:attr:`FapRig.lip_gap`)."""
     from faceanim.drivers.speech.visemes import viseme_actions
 
-    actions = viseme_actions(phones, rig.lip_gap) + list(extra or [])
+    actions = viseme_actions(phones, lip_gap) + list(extra or [])
     end = max([p.end for p in phones] + [a.end for a in actions])
     return blend_actions(actions, int(np.ceil(end * fps)) + 1, fps, name)
 
 
 def render_stream(rig: FapRig, stream: FapStream, path, lm478, size: int = 512, audio=None, progress=None) -> Path:
     """Render a FAP stream on the rig's face to an MP4 (with the WAV ``audio`` as its sound)."""
-    from faceanim.face.landmarks import FACE_OVAL
-    from faceanim.render import OffscreenRenderer, write_video
-
-    with OffscreenRenderer(rig.mesh, size=(size, size), yaw=8, pitch=3,
-                           frame_vertices=np.asarray(lm478)[list(FACE_OVAL)], margin=1.3) as r:
-        frames = (r.render(v) for v in _chunks(rig, stream))
-        return write_video(path, frames, fps=stream.fps, audio=audio, progress=progress)
+    return render_curves(rig, rig.stream_curves(stream), path, stream.fps, lm478, size, audio, progress)
 
 
-def _chunks(rig: FapRig, stream: FapStream, size: int = 64):
-    for a in range(0, stream.n_frames, size):
-        sub = FapStream(stream.values[a:a + size], stream.mask[a:a + size], stream.fps, stream.name,
-                        stream.viseme[a:a + size], stream.expression[a:a + size], stream.frame_numbers[a:a + size])
-        yield from rig.evaluate(sub)
-
-
-def gltf_stream(rig: FapRig, stream: FapStream, path) -> Path:
-    """A FAP stream as a glTF animation: one morph target per FAP the stream uses, weighted by the
-    FAP's values (scaled to [-1, 1]). The linear FAPs are exact; the jaw and head rotations are
-    linearised around the neutral face (exact for small angles; the MP4 keeps true rotations)."""
-    from faceanim.errors import FaceAnimError
-    from faceanim.io.gltf import write_gltf
-
-    shapes, columns, scales = {}, [], []
-    for idx in np.flatnonzero(stream.mask.any(axis=0)):
-        n = idx + 1
-        if n in (3, 14, 15, 48, 49, 50):
-            small = 50.0 if n in (3, 14, 15) else 1000.0
-            probe = FapStream.empty(1, stream.fps)
-            probe.values[0, idx] = small
-            probe.mask[0, idx] = True
-            per_unit = (rig.evaluate(probe)[0] - rig.mesh.vertices) / small
-        elif n > 2 and rig.supported[idx]:
-            per_unit = rig.blendshape(n)
-        else:
-            continue
-        peak = float(np.abs(stream.values[stream.mask[:, idx], idx]).max()) or 1.0
-        shapes[f"fap{n}"] = per_unit * peak
-        columns.append(idx)
-        scales.append(peak)
-    if not shapes:
+def gltf_stream(rig: FapRig, stream: FapStream, path, **options) -> Path:
+    """A FAP stream as a glTF animation: one morph target per FAP the stream uses that this face
+    can show, named by the FAP (``open_jaw``), weighted by its values scaled to [-1, 1]."""
+    curves = rig.stream_curves(stream)
+    used = [rig.controls[k] for k in np.flatnonzero(np.abs(curves).max(0) > 0)
+            if rig.supported[k] and k >= 2]
+    if not used:
         raise FaceAnimError("the stream sets no FAP this face can show")
-    weights = np.where(stream.mask[:, columns], stream.values[:, columns], 0.0) / np.array(scales)
-    times = np.arange(stream.n_frames) / stream.fps
-    return write_gltf(path, rig.mesh, shapes, times=times, weights=weights, animation_name=stream.name or "faps")
+    return write_rig_gltf(rig, curves, path, stream.fps, stream.name or "faps", names=used, **options)

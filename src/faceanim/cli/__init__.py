@@ -337,7 +337,7 @@ def _cmd_say(args) -> None:
             end = max(p.end for p in phones)
             extra.append(Action(args.expression, expression_faps(args.expression), 0.0, end + 0.2,
                                 args.intensity, "linear", 0.1, 0.1, 0.3))
-        stream = speech_stream(rig, phones, args.fps, extra, name=Path(args.output).stem)
+        stream = speech_stream(rig.lip_gap, phones, args.fps, extra, name=Path(args.output).stem)
         if suffix == ".fap":
             write_fap(args.output, stream)
         elif suffix == ".glb":

@@ -65,6 +65,7 @@ class LinearDeformer:
         self.weights = weights
         self.rows = rows
         self._full = self._mask = None  # full-height CSC for sparse evaluation, built on first use
+        self._axis_ops = None  # per-axis columns for blendshape evaluation, built on first use
         self.handle_names = list(handle_names) if handle_names is not None else None
         if self.handle_names is not None and len(self.handle_names) != weights.shape[1]:
             raise DeformError("handle_names must give one name per handle")
@@ -217,6 +218,29 @@ class LinearDeformer:
                 out[f] = base
                 out[f, rows] += w @ frames[f]
         return out[0] if single else out
+
+    def apply_blendshapes(self, curves) -> np.ndarray:
+        """Positions (F, V, 3) when the handles come in threes, one (x, y, z) triple per blendshape,
+        and handle ``3c + a`` moves along axis ``a`` by ``curves[:, c]``: the same ``rest + W @
+        offsets`` as :meth:`apply` with those offsets, evaluated as ``rest[:, a] + W[:, a::3] @
+        curves.T`` for all frames at once (no zeros multiplied). This is how a rig's blendshape
+        columns are evaluated (:class:`faceanim.rig.rig.Rig`)."""
+        c = np.asarray(curves, dtype=self.rest.dtype)
+        if c.ndim != 2 or 3 * c.shape[1] != self.n_handles:
+            raise DeformError(f"blendshape curves must have shape (frames, {self.n_handles // 3}), got {c.shape}")
+        if self._axis_ops is None:
+            if sp.issparse(self.weights):
+                full, _ = self._sparse_full_rows()
+                self._axis_ops = [sp.csr_matrix(full[:, a::3]) for a in range(3)]
+            else:
+                full = self.dense_weights()
+                self._axis_ops = [np.ascontiguousarray(full[:, a::3]) for a in range(3)]
+        out = np.empty((c.shape[0],) + self.rest.shape, dtype=self.rest.dtype)
+        ct = np.ascontiguousarray(c.T)
+        for a, op in enumerate(self._axis_ops):
+            d = op @ ct  # (V, F)
+            np.add(d.T, self.rest[:, a], out=out[:, :, a])
+        return out
 
     # ------------------------------------------------------------------ composition
     @staticmethod

@@ -89,6 +89,11 @@ class BoundElement:
     moving: np.ndarray        # region minus boundary: the vertices that move
     weights: np.ndarray       # (len(moving),) displacement per unit control offset
 
+    def deformer(self, rest: np.ndarray) -> LinearDeformer:
+        """This element alone as a bound operator with one handle (its control offset)."""
+        w = sp.csr_matrix(self.weights.astype(rest.dtype)[:, None])
+        return LinearDeformer(rest, w, self.moving, [self.element.name or "gde"])
+
 
 def influence_region(mesh, root: int, control: np.ndarray, extent: float,
                      metric: str) -> tuple[np.ndarray, np.ndarray]:
@@ -203,17 +208,5 @@ def bind_gdes(mesh, elements, dtype=np.float64) -> LinearDeformer:
     elements = list(elements)
     if not elements:
         raise DeformError("give at least one geometry deformation element")
-    bound = [bind_element(mesh, e) for e in elements]
-    return deformer_from_bound(mesh, bound, dtype)
-
-
-def deformer_from_bound(mesh, bound: list[BoundElement], dtype=np.float64) -> LinearDeformer:
-    rows = np.unique(np.concatenate([b.moving for b in bound]))
-    pos = np.full(mesh.n_vertices, -1, dtype=np.int64)
-    pos[rows] = np.arange(rows.size)
-    r = np.concatenate([pos[b.moving] for b in bound])
-    c = np.concatenate([np.full(b.moving.size, j) for j, b in enumerate(bound)])
-    v = np.concatenate([b.weights for b in bound])
-    w = sp.csr_matrix((v.astype(dtype), (r, c)), shape=(rows.size, len(bound)))
-    names = [b.element.name or f"gde{j}" for j, b in enumerate(bound)]
-    return LinearDeformer(mesh.vertices.astype(dtype), w, rows, names)
+    rest = np.asarray(mesh.vertices, dtype=dtype)
+    return LinearDeformer.stack([bind_element(mesh, e).deformer(rest) for e in elements])

@@ -300,3 +300,18 @@ EYE_LEFT = (263, 466, 388, 387, 386, 385, 384, 398, 362, 382, 381, 380, 374, 373
 
 # landmarks on bone that barely move with expressions: rigid alignment of expressive scans
 STABLE_LANDMARKS = (168, 6, 197, 195, 133, 362, 33, 263, 234, 454, 10, 151)
+
+# the slits of a face (mouth, eyes) by MediaPipe indices: the two corners and the middle of the
+# upper and lower margins, so a vertex can be told to be on the upper or lower lip or lid
+SLITS = {
+    "mouth": {"corners": (61, 291), "upper": (0, 37, 267, 39, 269), "lower": (17, 84, 314, 181, 405)},
+    "eye_R": {"corners": (33, 133), "upper": (159, 158, 160, 157, 161), "lower": (145, 144, 153, 154, 163)},
+    "eye_L": {"corners": (263, 362), "upper": (386, 385, 387, 384, 388), "lower": (374, 373, 380, 381, 390)},
+}
+# named MediaPipe points the face frame, the jaw and the regions use
+NOSE_TIP = 4  # the pronasale
+CHIN = 152  # menton, the lowest point of the chin on the face oval
+EYE_OUTER_CORNERS = (33, 263)  # subject's right, left (exocanthion)
+MOUTH_CORNERS = (61, 291)  # subject's right, left (cheilion)
+INNER_LIPS = (13, 14)  # upper, lower inner lip at the centre
+CHEEK_EXTREMES = (234, 454)  # the widest points of the face oval, in front of the ears

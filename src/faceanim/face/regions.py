@@ -8,7 +8,7 @@ from scipy.sparse import csgraph
 
 from faceanim.errors import LandmarkError
 from faceanim.face.frame import FaceFrame, face_frame
-from faceanim.face.landmarks import EYE_LEFT, EYE_RIGHT, FACE_OVAL, LIP_OUTER
+from faceanim.face.landmarks import EYE_LEFT, EYE_RIGHT, FACE_OVAL, LIP_OUTER, SLITS
 from faceanim.face.mesh import Mesh
 
 # inter-ocular distances of skin around the face outline that expressions may still move
@@ -101,7 +101,7 @@ def graph_distance(mesh: Mesh, sources: np.ndarray, limit: float | None = None) 
                             limit=np.inf if limit is None else limit)
 
 
-def slit_sides(mesh: Mesh, lm478: np.ndarray, library) -> dict[str, np.ndarray]:
+def slit_sides(mesh: Mesh, lm478: np.ndarray) -> dict[str, np.ndarray]:
     """For each slit (mouth, eyes): True where a vertex is on the lower side (lower lip or lid).
 
     Decided by distance along the surface from the outer lip or lid margin landmarks, so the
@@ -112,7 +112,7 @@ def slit_sides(mesh: Mesh, lm478: np.ndarray, library) -> dict[str, np.ndarray]:
     on_skin = np.flatnonzero(skin(mesh, lm478))
     tree_v = cKDTree(mesh.vertices[on_skin])
     out = {}
-    for name, s in library.slits.items():
+    for name, s in SLITS.items():
         _, up = tree_v.query(np.asarray(lm478)[list(s["upper"])])
         _, lo = tree_v.query(np.asarray(lm478)[list(s["lower"])])
         du = graph_distance(mesh, np.unique(on_skin[up]))

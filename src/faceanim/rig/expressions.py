@@ -1,4 +1,4 @@
-"""A rig: named controls over one rest mesh, compiled to blendshapes.
+"""Expressions as sets of geometry deformation elements (Noh, Fidaleo & Neumann 2000), compiled to a Rig.
 
 An *expression* (seed paper section 2.5) is a set of geometry deformation elements driven by one
 parameter ``d`` in [0, 1]: ``d = 0`` is the neutral face, ``d = 1`` puts every control point of
@@ -10,14 +10,15 @@ matrix product, ``(F, C) @ (C, 3V)``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from faceanim.deform.gde import GeometryDeformationElement
+from faceanim.deform.gde import GeometryDeformationElement, bind_gdes
 from faceanim.deform.rbf import check_points
 from faceanim.errors import DeformError
+from faceanim.rig.rig import Rig
 
 
 @dataclass
@@ -48,3 +49,20 @@ class Expression:
                 {**e, "name": e.get("name", f"{name}.{k}")}, k))
             offsets.append(check_points(e["offset"], f"expression '{name}' element {k} offset")[0])
         return cls(name, elements, np.array(offsets))
+
+
+def expression_rig(mesh, expressions: Sequence[Expression]) -> Rig:
+    """Bind every expression's GDEs once (one deformer, one handle per element) and compile each
+    expression to a blendshape: the rig's control ``name`` is the expression's ``d``."""
+    names = [e.name for e in expressions]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise DeformError(f"expression names must be unique; repeated: {', '.join(dup)}")
+    deformer = bind_gdes(mesh, [el for e in expressions for el in e.elements])
+    shapes, start = {}, 0
+    for e in expressions:
+        off = np.zeros((deformer.n_handles, 3))
+        off[start:start + len(e.elements)] = e.offsets
+        shapes[e.name] = deformer.displacements(off)
+        start += len(e.elements)
+    return Rig.from_blendshapes(mesh, shapes)

@@ -20,6 +20,7 @@ import numpy as np
 from faceanim.errors import FaceAnimError, LandmarkError
 from faceanim.face.frame import FaceFrame, face_frame
 from faceanim.face.mesh import Mesh
+from faceanim.face.landmarks import SLITS
 from faceanim.face.regions import skin, slit_sides, smoothstep
 
 REGIONS = ("upper", "lower")
@@ -83,7 +84,7 @@ class ActionUnitLibrary:
             n: ControlPointSpec(n, tuple(int(i) for i in d["at"]), d["region"], d.get("side_of"), d.get("lid"),
                                 tuple(float(x) for x in d.get("offset", (0.0, 0.0, 0.0))))
             for n, d in data["control_points"].items()}
-        self.slits = {n: {k: tuple(v) for k, v in d.items()} for n, d in data["slits"].items()}
+        self.slits = SLITS
         self.masks = data["region_masks"]
         self.anchors = tuple(int(i) for i in data.get("anchors", ()))
         self.action_units = {
@@ -222,7 +223,7 @@ def place_control_points(mesh: Mesh, lm478: np.ndarray, library: ActionUnitLibra
     specs = [s for s, u in zip(specs, usable) if u]
     target, pos, tri = target[usable], pos[usable], tri[usable]
     if any(s.side_of for s in specs):
-        sides = sides if sides is not None else slit_sides(mesh, lm478, library)
+        sides = sides if sides is not None else slit_sides(mesh, lm478)
         vt = mesh.vertex_triangle
         for k, s in enumerate(specs):
             if not s.side_of:

@@ -16,18 +16,16 @@ them reports these FAPs as unsupported.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
-from faceanim.drivers.mpeg4 import FapStream
-from faceanim.face.faps import ANGLE_UNIT, N_FAPS, FapError, direction_vector, faps
+from faceanim.face.faps import ANGLE_UNIT, N_FAPS, FapError, direction_vector, fap, faps
 from faceanim.face.fdp import FeaturePoints, feature_points
 from faceanim.face.mesh import Mesh
-from faceanim.face.regions import graph_distance as _graph_distance
-from faceanim.face.regions import past_corners, skin, slit_sides, smoothstep
-from faceanim.rig.facs import default_library
+from faceanim.face.landmarks import CHEEK_EXTREMES, MOUTH_CORNERS
+from faceanim.face.regions import graph_distance, past_corners, skin, slit_sides, smoothstep
+from faceanim.rig.rig import Rig, RigidPart
 
 # influence radius of a FAP's feature point by FAP group: (factor, FAPU); within PLATEAU of the
 # radius the weight is 1 (a lid or brow moves as a piece), then it falls off as a raised cosine
@@ -58,16 +56,6 @@ LIDS = {"3.1": ("4.3", "3.11", "3.7"), "3.3": ("4.3", "3.11", "3.7"),
 JAW_FAPS = (3, 14, 15)
 HEAD_FAPS = (48, 49, 50)
 EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)
-
-
-def _rot(axis: int, a: float) -> np.ndarray:
-    """Rotation by ``a`` radians about the x (0), y (1) or z (2) axis of the face frame."""
-    c, s = np.cos(a), np.sin(a)
-    if axis == 0:
-        return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-    if axis == 1:
-        return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
 
 
 def _find_eyeballs(mesh: Mesh, fp: FeaturePoints, on_skin: np.ndarray) -> dict:
@@ -127,28 +115,26 @@ def _chain_gaps(fp: FeaturePoints) -> dict[str, float]:
     return gaps
 
 
-@dataclass
-class FapRig:
-    """A face rigged for MPEG-4 FAPs: blendshapes per unit value, jaw and head rotations."""
+class FapRig(Rig):
+    """A face rigged for MPEG-4 FAPs: a :class:`Rig` whose 68 controls are the FAPs by name
+    (values in FAPU units; FAPs 1 and 2 and those this face cannot show drive nothing), with
+    the jaw, the eyeballs and the head as rigid parts. ``evaluate`` takes an (F, 68) matrix or a
+    FAP stream (values where its mask is set)."""
 
-    mesh: Mesh
-    points: FeaturePoints
-    blendshapes: sp.csr_matrix  # (68, 3V): row n-1 = displacement per unit value of FAP n
-    supported: np.ndarray  # (68,) bool
-    unsupported: dict[int, str] = field(default_factory=dict)
+    points: FeaturePoints = None
+    supported: np.ndarray = None  # (68,) bool
+    unsupported: dict = None  # FAP number -> why this face cannot show it
     jaw_weight: np.ndarray = None
     jaw_pivot: np.ndarray = None
-    eyes: dict = field(default_factory=dict)  # 'L'/'R' -> (vertex rows, centre of rotation)
-    _bt: sp.csr_matrix = field(default=None, repr=False)
-    _jaw_rows: np.ndarray = field(default=None, repr=False)
-    _jaw_rel: np.ndarray = field(default=None, repr=False)
+    eyes: dict = None  # 'L'/'R' -> (vertex rows, centre of rotation), None where no eyeball
 
     @classmethod
     def build(cls, mesh: Mesh, lm478: np.ndarray) -> FapRig:
+        """Build the FaceDefTable of ``mesh`` from its 478 landmarks: the FAP blendshapes and rigid parts."""
         fp = feature_points(mesh, lm478)
         frame = fp.frame
         on_skin = skin(mesh, lm478)
-        sides = slit_sides(mesh, lm478, default_library())
+        sides = slit_sides(mesh, lm478)
         eyes = _find_eyeballs(mesh, fp, on_skin)
         rows, cols, vals = [], [], []
         supported = np.zeros(N_FAPS, dtype=bool)
@@ -180,7 +166,7 @@ class FapRig:
             d = direction_vector(f) @ frame.rotation  # face frame -> mesh
             for p in f.feature_points:
                 r, plateau = (min(radius, gaps[p]), 0.0) if p in gaps else (radius, PLATEAU)
-                dist = _graph_distance(mesh, np.array([vertex_of[p]]), limit=r)
+                dist = graph_distance(mesh, np.array([vertex_of[p]]), limit=r)
                 w = np.where(np.isfinite(dist), _falloff(dist, r, plateau), 0.0) * on_skin
                 if p in SIDE:
                     slit, lower = SIDE[p]
@@ -200,17 +186,46 @@ class FapRig:
         # fading out towards the ears. Hinge in front of the ears, at the level of the nose tip.
         local = frame.to_local(mesh.vertices)
         lm = np.asarray(lm478)
-        corners = frame.to_local(lm[[61, 291]])
+        corners = frame.to_local(lm[list(MOUTH_CORNERS)])
         y_mouth = corners[:, 1].mean()
         past = past_corners(local[:, 0], corners[:, 0], 0.6, 0.8)
         below = smoothstep((y_mouth - local[:, 1]) / (0.35 * frame.iod) + 0.5)
         inside = sides["mouth"].astype(float)
-        ear_x = abs(frame.to_local(lm[[234, 454]])[:, 0]).mean()
+        ear_x = abs(frame.to_local(lm[list(CHEEK_EXTREMES)])[:, 0]).mean()
         fade_side = np.clip((ear_x - np.abs(local[:, 0])) / (0.35 * frame.iod), 0.0, 1.0)
         jaw = ((1 - past) * inside + past * below) * fade_side * on_skin
-        pivot_local = np.array([0.0, 0.0, frame.to_local(lm[[234, 454]])[:, 2].mean()])
+        pivot_local = np.array([0.0, 0.0, frame.to_local(lm[list(CHEEK_EXTREMES)])[:, 2].mean()])
         pivot = frame.origin + pivot_local @ frame.rotation
-        return cls(mesh, fp, shapes, supported, unsupported, jaw, pivot, eyes)
+        chin = frame.to_local(fp["2.1"]) - pivot_local
+        mns, mw = fp.unit("MNS"), fp.unit("MW")
+        table = faps()
+        name = {f.number: f.name for f in table}
+        jaw_rows = np.flatnonzero(jaw > 0)
+        parts = [RigidPart("jaw", jaw_rows, jaw[jaw_rows], pivot, frame.rotation,
+                           rotations=[(name[3], 0, mns)],
+                           translations=[(name[14], frame.rotation[2] * mns),  # thrust_jaw: forward
+                                         (name[15], -frame.rotation[0] * mw)],  # shift_jaw: to the face's right
+                           from_rest=True, hinge=chin)]
+        for side, (yaw_fap, pitch_fap) in (("L", (23, 25)), ("R", (24, 26))):
+            if eyes.get(side) is not None:
+                rows, centre = eyes[side]
+                parts.append(RigidPart(f"eyeball_{side}", rows, np.ones(len(rows)), centre, frame.rotation,
+                                       rotations=[(name[yaw_fap], 1, ANGLE_UNIT), (name[pitch_fap], 0, ANGLE_UNIT)]))
+        # the head about 7.1 (face frame: x left, y up, z forward): a turn to the face's left (+yaw)
+        # about +y, then a nod down (+pitch) about +x, then a roll to its right (+roll) about +z
+        parts.append(RigidPart("head", np.arange(mesh.n_vertices), np.ones(mesh.n_vertices), fp["7.1"].copy(),
+                               frame.rotation, rotations=[(name[49], 1, ANGLE_UNIT), (name[48], 0, ANGLE_UNIT),
+                                                          (name[50], 2, ANGLE_UNIT)]))
+        base = Rig.from_blendshapes(mesh, shapes, controls=[f.name for f in table], rigid_parts=parts,
+                                    limits=_limits())
+        return cls(base.mesh, base.controls, base.deformer, base.rigid_parts, base.limits, points=fp,
+                   supported=supported, unsupported=unsupported, jaw_weight=jaw, jaw_pivot=pivot, eyes=eyes)
+
+    def __init__(self, mesh, controls, deformer, rigid_parts=(), limits=None, *, points=None, supported=None,
+                 unsupported=None, jaw_weight=None, jaw_pivot=None, eyes=None):
+        super().__init__(mesh, controls, deformer, list(rigid_parts), limits)
+        self.points, self.supported, self.unsupported = points, supported, dict(unsupported or {})
+        self.jaw_weight, self.jaw_pivot, self.eyes = jaw_weight, jaw_pivot, dict(eyes or {})
 
     @property
     def lip_gap(self) -> float:
@@ -219,89 +234,32 @@ class FapRig:
         gap = fp.frame.to_local(fp["2.2"])[1] - fp.frame.to_local(fp["2.3"])[1]
         return max(float(gap), 0.0) / fp.unit("MNS")
 
-    def check(self, stream: FapStream) -> list[str]:
+    @staticmethod
+    def stream_curves(stream) -> np.ndarray:
+        """A FAP stream's (F, 68) control curves: its values where its mask is set, 0 elsewhere."""
+        return np.where(stream.mask, stream.values, 0.0)
+
+    def check(self, stream) -> list[str]:
         """Warnings: FAPs the stream sets that this face cannot show, values that will be clamped."""
         used = np.flatnonzero(stream.mask.any(axis=0)) + 1
         out = [f"FAP {n} ({faps()[n - 1].name}): {self.unsupported[n]}" for n in used if n in self.unsupported]
-        vals = np.where(stream.mask, stream.values, 0.0)
-        limits = _limits()
-        over = np.flatnonzero((np.abs(vals) > limits).any(axis=0))
+        vals = self.stream_curves(stream)
+        over = np.flatnonzero((np.abs(vals) > self.limits).any(axis=0))
         for idx in over:
             f = faps()[idx]
             out.append(f"FAP {f.number} ({f.name}): values up to {np.abs(vals[:, idx]).max():g} are clamped to "
-                       f"+-{limits[idx]:g}")
+                       f"+-{self.limits[idx]:g}")
         return out
 
-    def evaluate(self, stream: FapStream) -> np.ndarray:
-        """Vertices (F, V, 3) for a FAP stream (values where the mask is set, 0 elsewhere)."""
-        limits = _limits()
-        vals = np.clip(np.where(stream.mask, stream.values, 0.0), -limits, limits)
-        n_frames, v0 = len(vals), self.mesh.vertices
-        frame = self.points.frame
-        if self._bt is None:
-            self._bt = self.blendshapes.T.tocsr()
-            self._jaw_rows = np.flatnonzero(self.jaw_weight > 0)
-            self._jaw_rel = (v0[self._jaw_rows] - self.jaw_pivot) @ frame.rotation.T  # jaw-hinge frame
-        out = (self._bt @ vals.T).T.reshape(n_frames, -1, 3)
-        out += v0
-        jaw_frames = np.flatnonzero(np.abs(vals[:, [2, 13, 14]]).sum(1) > 0)
-        if len(jaw_frames):
-            mns, mw = self.points.unit("MNS"), self.points.unit("MW")
-            chin = frame.to_local(self.points["2.1"]) - frame.to_local(self.jaw_pivot)
-            rows, rel = self._jaw_rows, self._jaw_rel
-            open_, thrust, shift = (vals[jaw_frames, 2], vals[jaw_frames, 13], vals[jaw_frames, 14])
-            # turn about the hinge's x axis so that the chin (2.1) drops by open_jaw * MNS / 1024
-            angle = self._jaw_angle(open_ * mns, chin)
-            c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
-            d = np.empty((len(jaw_frames), len(rows), 3))
-            d[..., 0] = -(shift * mw)[:, None]  # shift_jaw + moves towards the face's right (-x)
-            d[..., 1] = c * rel[:, 1] - s * rel[:, 2] - rel[:, 1]
-            d[..., 2] = s * rel[:, 1] + c * rel[:, 2] - rel[:, 2] + (thrust * mns)[:, None]
-            moved = self.jaw_weight[rows, None] * (d @ frame.rotation)
-            for j, k in enumerate(jaw_frames):
-                out[k, rows] += moved[j]
-        for side, (yaw_i, pitch_i) in (("L", (22, 24)), ("R", (23, 25))):
-            eye = self.eyes.get(side)
-            if eye is None:
-                continue
-            rows, centre = eye
-            for k in np.flatnonzero(np.abs(vals[:, [yaw_i, pitch_i]]).sum(1) > 0):
-                r = frame.rotation.T @ _rot(1, vals[k, yaw_i] * ANGLE_UNIT) @ _rot(0, vals[k, pitch_i] * ANGLE_UNIT) \
-                    @ frame.rotation
-                out[k, rows] = (out[k, rows] - centre) @ r.T + centre
-        for k in np.flatnonzero(np.abs(vals[:, 47:50]).sum(1) > 0):
-            pitch, yaw, roll = vals[k, 47:50] * ANGLE_UNIT
-            out[k] = self._head(out[k], pitch, yaw, roll)
-        return out
-
-    @staticmethod
-    def _jaw_angle(drop: np.ndarray, chin: np.ndarray) -> np.ndarray:
-        """Hinge angles that lower the chin (at ``chin`` = (x, y, z) from the hinge) by ``drop``:
-        y (1 - cos a) + z sin a = drop, by Newton's method from drop / z."""
-        y, z = float(chin[1]), max(float(chin[2]), 1e-12)
-        a = np.asarray(drop, dtype=np.float64) / z
-        for _ in range(8):
-            f = y * (1 - np.cos(a)) + z * np.sin(a) - drop
-            a = a - f / (y * np.sin(a) + z * np.cos(a))
-        return np.clip(a, -np.pi / 3, np.pi / 3)
-
-    def _head(self, verts: np.ndarray, pitch: float, yaw: float, roll: float) -> np.ndarray:
-        """Rotate the head about 7.1: pitch + nods down, yaw + turns to the face's left, roll + to its right."""
-        frame = self.points.frame
-        rot = _rot
-        # face frame: x left, y up, z forward. A nod down (+pitch) about +x brings the gaze towards
-        # -y; a turn to the face's left (+yaw) about +y brings it towards +x; a roll to the face's
-        # right (+roll) about +z brings the top of the head towards -x
-        r_local = rot(1, yaw) @ rot(0, pitch) @ rot(2, roll)
-        r = frame.rotation.T @ r_local @ frame.rotation
-        pivot = self.points["7.1"]
-        return (verts - pivot) @ r.T + pivot
+    def evaluate(self, curves) -> np.ndarray:
+        """Vertices (F, V, 3) for a FAP stream or (F, 68) FAP values."""
+        if hasattr(curves, "mask"):
+            curves = self.stream_curves(curves)
+        return super().evaluate(curves)
 
     def blendshape(self, key) -> np.ndarray:
         """(V, 3) displacement per unit value of a linear FAP."""
-        from faceanim.face.faps import fap
-
         f = fap(key)
         if f.number in JAW_FAPS or f.number in HEAD_FAPS or f.is_high_level:
             raise FapError(f"FAP {f.number} ({f.name}) is a rotation or a high-level FAP, not a blendshape")
-        return self.blendshapes[f.number - 1].toarray().reshape(-1, 3)
+        return super().blendshape(f.name)

@@ -315,4 +315,4 @@ class ExpressionTransfer:
         floor = CUTOFF * self.frame.iod
         for d in shapes.values():
             d[np.linalg.norm(d, axis=1) < floor] = 0.0
-        return Rig(self.mesh, shapes)
+        return Rig.from_blendshapes(self.mesh, shapes)

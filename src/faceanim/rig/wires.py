@@ -87,7 +87,7 @@ class WireSet:
             from faceanim.rig.facs import default_library
 
             library = default_library()
-            lower = slit_sides(mesh, lm478, library)
+            lower = slit_sides(mesh, lm478)
             frame = face_frame(lm478)
             x = frame.to_local(v)[:, 0]
             masks = []
