@@ -33,7 +33,7 @@ def test_real_quad_obj_with_uv_seams_round_trips(tmp_path, name):
 
 def test_textured_obj_round_trip_keeps_texture(tmp_path, base_face):
     written = save_mesh(base_face, tmp_path / "face.obj")
-    assert {p.name for p in written} == {"face.obj", "face.mtl", "face.png"}
+    assert {p.name for p in written} == {"face.obj", "face.mtl", "face.texture.png"}
     back = load_mesh(tmp_path / "face.obj")
     assert np.array_equal(back.texture, base_face.texture)
     np.testing.assert_allclose(back.uv, base_face.uv, atol=1e-7)
