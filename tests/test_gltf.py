@@ -1,4 +1,6 @@
-"""glTF export: morph targets and their animation, read back and checked by Khronos' validator."""
+"""glTF export: morph targets and their animation, read back and checked by Khronos' validator;
+the quantised (KHR_mesh_quantization) variant read back and dequantised here, by hand, from the
+glTF spec."""
 
 import json
 import shutil
@@ -9,30 +11,72 @@ import pygltflib
 import pytest
 from conftest import ROOT
 
+from faceanim.errors import FaceAnimError
 from faceanim.io.gltf import write_gltf
 
 VALIDATOR = ROOT / "tools" / "validate_gltf.js"
+_DTYPES = {pygltflib.BYTE: np.int8, pygltflib.UNSIGNED_BYTE: np.uint8, pygltflib.SHORT: np.int16,
+           pygltflib.UNSIGNED_SHORT: np.uint16, pygltflib.UNSIGNED_INT: np.uint32, pygltflib.FLOAT: np.float32}
+_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+# the spec's dequantisation of normalised integers (glTF 2.0, "Animations" / KHR_mesh_quantization)
+_NORMALIZE = {np.int8: lambda c: np.maximum(c / 127.0, -1.0), np.uint8: lambda c: c / 255.0,
+              np.int16: lambda c: np.maximum(c / 32767.0, -1.0), np.uint16: lambda c: c / 65535.0}
+# the quantised file's stated accuracy: no coordinate off by more than this share of the face's
+# bounding-box diagonal (measured: 5.3e-6 on the base face's synthetic targets, see the report in
+# benchmarks/bench_gltf.py for the 30k-vertex face)
+QUANTIZED_RELATIVE_BOUND = 1e-4
+
+
+def _raw(gltf, index):
+    """An accessor's stored values (dense, strided or sparse), undecoded."""
+    acc = gltf.accessors[index]
+    blob = gltf.binary_blob()
+    n, dtype = _WIDTH[acc.type], np.dtype(_DTYPES[acc.componentType])
+    if acc.bufferView is None:
+        a = np.zeros((acc.count, n), dtype=dtype)
+    else:
+        view = gltf.bufferViews[acc.bufferView]
+        stride = view.byteStride or n * dtype.itemsize
+        start = view.byteOffset + (acc.byteOffset or 0)
+        rows = np.arange(acc.count)[:, None] * stride + np.arange(n * dtype.itemsize)[None, :]
+        a = np.frombuffer(blob, dtype=np.uint8)[start + rows].copy().view(dtype)
+    if acc.sparse is not None:
+        sp = acc.sparse
+        iview, vview = gltf.bufferViews[sp.indices.bufferView], gltf.bufferViews[sp.values.bufferView]
+        idx = np.frombuffer(blob, dtype=_DTYPES[sp.indices.componentType], count=sp.count,
+                            offset=iview.byteOffset + (sp.indices.byteOffset or 0))
+        val = np.frombuffer(blob, dtype=dtype, count=sp.count * n, offset=vview.byteOffset + (sp.values.byteOffset or 0))
+        assert np.all(np.diff(idx.astype(np.int64)) > 0)
+        a[idx] = val.reshape(-1, n)
+    return a
 
 
 def _accessor(gltf, index):
-    """Decode an accessor by hand from the glTF spec (dense or sparse)."""
+    """Decode an accessor by hand from the glTF spec (dense, strided or sparse; normalised
+    integers are dequantised to floats)."""
     acc = gltf.accessors[index]
-    blob = gltf.binary_blob()
-    n = {"SCALAR": 1, "VEC2": 2, "VEC3": 3}[acc.type]
-    dtype = np.float32 if acc.componentType == pygltflib.FLOAT else np.uint32
-    if acc.bufferView is None:
-        a = np.zeros(acc.count * n, dtype=dtype)
-    else:
-        view = gltf.bufferViews[acc.bufferView]
-        a = np.frombuffer(blob, dtype=dtype, count=acc.count * n, offset=view.byteOffset).copy()
-    if acc.sparse is not None:
-        sp = acc.sparse
-        idx = np.frombuffer(blob, dtype=np.uint32, count=sp.count,
-                            offset=gltf.bufferViews[sp.indices.bufferView].byteOffset)
-        val = np.frombuffer(blob, dtype=dtype, count=sp.count * n,
-                            offset=gltf.bufferViews[sp.values.bufferView].byteOffset)
-        a.reshape(acc.count, n)[idx] = val.reshape(-1, n)
-    return a.reshape(acc.count, n) if n > 1 else a
+    a = _raw(gltf, index)
+    if acc.normalized:
+        a = _NORMALIZE[a.dtype.type](a.astype(np.float64))
+    return a if a.shape[1] > 1 else a[:, 0]
+
+
+def _validate(path):
+    if shutil.which("node") is None or not (ROOT / "tools" / "node_modules" / "gltf-validator").exists():
+        pytest.skip("node or the gltf-validator npm package is missing (scripts/setup.sh installs it)")
+    out = subprocess.run(["node", str(VALIDATOR), str(path)], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout)
+
+
+def _smooth_local_deltas(mesh, n, rng, radius=0.015, amplitude=0.005):
+    """``n`` Gaussian bumps, each moving the vertices near one random vertex (cut at 1e-3 of the peak)."""
+    v = mesh.vertices
+    shapes = {}
+    for k, c in enumerate(rng.choice(len(v), size=n, replace=False)):
+        w = np.exp(-np.sum((v - v[c]) ** 2, axis=1) / (2 * radius**2))
+        w[w < 1e-3] = 0
+        shapes[f"bump{k:02d}"] = w[:, None] * rng.normal(scale=amplitude, size=3)
+    return shapes
 
 
 @pytest.fixture(scope="module")
@@ -62,13 +106,168 @@ def test_morph_targets_and_animation_read_back(exported, base_face):
     assert gltf.animations[0].channels[0].target.path == "weights"
     assert gltf.accessors[prim.targets[1]["POSITION"]].sparse.count == 60
     assert gltf.images and gltf.materials[0].pbrMetallicRoughness.baseColorTexture.index == 0
+    # the plain file: float data, no extension, no node transform, no scene extras
+    assert not gltf.extensionsUsed and not gltf.extensionsRequired
+    assert gltf.nodes[0].scale is None and gltf.nodes[0].translation is None
+    assert not gltf.scenes[0].extras
 
 
 def test_khronos_validator_reports_no_errors(exported):
-    if shutil.which("node") is None or not (ROOT / "tools" / "node_modules" / "gltf-validator").exists():
-        pytest.skip("node or the gltf-validator npm package is missing (scripts/setup.sh installs it)")
-    path = exported[0]
-    out = subprocess.run(["node", str(VALIDATOR), str(path)], capture_output=True, text=True, check=True)
-    report = json.loads(out.stdout)
+    report = _validate(exported[0])
     assert report["numErrors"] == 0, report["messages"]
     assert report["numWarnings"] == 0, report["messages"]
+
+
+@pytest.fixture(scope="module")
+def quantized(tmp_path_factory, base_face):
+    rng = np.random.default_rng(1)
+    v = base_face.vertices
+    shapes = _smooth_local_deltas(base_face, 6, rng)
+    shapes["smile"] = rng.normal(scale=1e-3, size=v.shape)  # dense
+    lower = np.clip((v[:, 1].mean() - v[:, 1]) / np.ptp(v[:, 1]), 0, None)
+    shapes["jaw"] = np.outer(lower, [0.0, -0.03, -0.01])  # large and smooth: 2-3 cm at the chin
+    shapes["tiny"] = np.full(v.shape, 1e-8)  # below half a quantisation step everywhere
+    times = np.linspace(0, 2, 9)
+    weights = np.abs(np.sin(np.outer(times, np.arange(1, len(shapes) + 1))))
+    folder = tmp_path_factory.mktemp("gltfq")
+    plain = write_gltf(folder / "plain.glb", base_face, shapes, times, weights)
+    path = write_gltf(folder / "face_q.glb", base_face, shapes, times, weights, quantize=True,
+                      extras={"audio": "speech.wav", "fps": 30, "tags": ["joy", None]})
+    return path, plain, shapes, times, weights
+
+
+def test_quantized_output_dequantises_within_the_stated_bound(quantized, base_face):
+    path, plain, shapes, times, weights = quantized
+    gltf = pygltflib.GLTF2().load(str(path))
+    assert gltf.extensionsUsed == ["KHR_mesh_quantization"]
+    assert gltf.extensionsRequired == ["KHR_mesh_quantization"]
+    prim = gltf.meshes[0].primitives[0]
+    names = list(shapes)
+    assert gltf.meshes[0].extras["targetNames"] == names
+    acc = gltf.accessors
+    kinds = {"POSITION": (pygltflib.SHORT, True), "NORMAL": (pygltflib.BYTE, True),
+             "TEXCOORD_0": (pygltflib.UNSIGNED_SHORT, True)}
+    for attr, (component, normalized) in kinds.items():
+        a = acc[getattr(prim.attributes, attr)]
+        assert (a.componentType, bool(a.normalized)) == (component, normalized), attr
+    assert acc[prim.indices].componentType == pygltflib.UNSIGNED_SHORT
+    node = gltf.nodes[0]
+    scale, centre = np.array(node.scale, dtype=np.float64), np.array(node.translation, dtype=np.float64)
+    assert np.all(scale == scale[0]), "uniform scale: the normals need no correction"
+
+    # positions: the node transform applied to the dequantised local coordinates
+    pos = _accessor(gltf, prim.attributes.POSITION) * scale + centre
+    diag = float(np.linalg.norm(np.ptp(base_face.vertices, axis=0)))
+    half_step = scale[0] / 32767 / 2
+    pos_err = np.abs(pos - base_face.vertices).max()
+    assert pos_err <= half_step * (1 + 1e-6)
+    # morph deltas: the same local space, so the node's scale (not its translation) applies
+    delta_err = 0.0
+    for k, name in enumerate(names):
+        t = acc[prim.targets[k]["POSITION"]]
+        assert t.componentType == pygltflib.SHORT and t.normalized
+        delta_err = max(delta_err, np.abs(_accessor(gltf, prim.targets[k]["POSITION"]) * scale - shapes[name]).max())
+    assert delta_err <= half_step * (1 + 1e-6)
+    assert max(pos_err, delta_err) < QUANTIZED_RELATIVE_BOUND * diag
+    # local targets stay sparse, dense ones dense; a target under half a step everywhere is empty
+    assert acc[prim.targets[0]["POSITION"]].sparse is not None
+    assert acc[prim.targets[names.index("smile")]["POSITION"]].bufferView is not None
+    tiny = acc[prim.targets[names.index("tiny")]["POSITION"]]
+    assert tiny.bufferView is None and tiny.sparse is None
+
+    normals = _accessor(gltf, prim.attributes.NORMAL)
+    plain_gltf = pygltflib.GLTF2().load(str(plain))
+    ref = _accessor(plain_gltf, plain_gltf.meshes[0].primitives[0].attributes.NORMAL)
+    cos = np.sum(normals * ref, axis=1) / np.linalg.norm(normals, axis=1)
+    assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 0.5
+    uv = _accessor(gltf, prim.attributes.TEXCOORD_0)
+    ref_uv = _accessor(plain_gltf, plain_gltf.meshes[0].primitives[0].attributes.TEXCOORD_0)
+    assert np.abs(uv - ref_uv).max() <= 0.5 / 65535 + 1e-7
+    np.testing.assert_array_equal(_accessor(gltf, prim.indices),
+                                  _accessor(plain_gltf, plain_gltf.meshes[0].primitives[0].indices))
+
+    sampler = gltf.animations[0].samplers[0]
+    np.testing.assert_allclose(_accessor(gltf, sampler.input), times, atol=1e-6)
+    np.testing.assert_allclose(_accessor(gltf, sampler.output).reshape(-1, len(names)), weights, atol=1e-6)
+    assert gltf.scenes[gltf.scene].extras == {"audio": "speech.wav", "fps": 30, "tags": ["joy", None]}
+    assert path.stat().st_size < plain.stat().st_size
+
+
+def test_khronos_validator_accepts_quantized_output(quantized):
+    report = _validate(quantized[0])
+    assert report["numErrors"] == 0, report["messages"]
+    assert report["numWarnings"] == 0, report["messages"]
+
+
+def test_quantized_default_face_is_under_half_the_size(tmp_path, face):
+    shapes = _smooth_local_deltas(face, 20, np.random.default_rng(2))
+    shapes["smile"] = np.random.default_rng(3).normal(scale=1e-3, size=face.vertices.shape)
+    plain = write_gltf(tmp_path / "plain.glb", face, shapes)
+    small = write_gltf(tmp_path / "small.glb", face, shapes, quantize=True)
+    assert small.stat().st_size < 0.5 * plain.stat().st_size
+    gltf = pygltflib.GLTF2().load(str(small))
+    prim = gltf.meshes[0].primitives[0]
+    scale = gltf.nodes[0].scale[0]
+    diag = float(np.linalg.norm(np.ptp(face.vertices, axis=0)))
+    err = max(np.abs(_accessor(gltf, prim.targets[k]["POSITION"]) * scale - d).max() for k, d in enumerate(shapes.values()))
+    assert err < QUANTIZED_RELATIVE_BOUND * diag
+
+
+@pytest.mark.parametrize("extras", [{"gain": float("nan")}, {1: "a"}, {"pair": (1, 2)}, {"x": np.float32(1)},
+                                    ["audio"], {"f": print}])
+def test_extras_must_be_json(tmp_path, base_face, extras):
+    with pytest.raises(FaceAnimError, match="extras"):
+        write_gltf(tmp_path / "x.glb", base_face, extras=extras)
+    assert not (tmp_path / "x.glb").exists()
+
+
+def test_extras_without_quantization(tmp_path, base_face):
+    path = write_gltf(tmp_path / "x.glb", base_face, extras={"audio": "speech.wav"})
+    gltf = pygltflib.GLTF2().load(str(path))
+    assert gltf.scenes[0].extras == {"audio": "speech.wav"}
+    assert gltf.accessors[gltf.meshes[0].primitives[0].attributes.POSITION].componentType == pygltflib.FLOAT
+
+
+@pytest.mark.parametrize("quantize", [False, True])
+def test_a_target_that_moves_nothing_is_valid(tmp_path, base_face, quantize):
+    """An all-zero blendshape: an accessor without data (it once got two empty buffer views,
+    which the validator rejects)."""
+    path = write_gltf(tmp_path / "zero.glb", base_face, {"zero": np.zeros(base_face.vertices.shape)}, quantize=quantize)
+    gltf = pygltflib.GLTF2().load(str(path))
+    target = gltf.meshes[0].primitives[0].targets[0]["POSITION"]
+    assert not np.any(_accessor(gltf, target))
+    assert all(view.byteLength > 0 for view in gltf.bufferViews)
+    report = _validate(path)
+    assert report["numErrors"] == 0, report["messages"]
+
+
+def test_quantized_keeps_float_uvs_outside_the_unit_square(tmp_path, base_face):
+    from faceanim.face.mesh import Mesh
+
+    tiled = Mesh(base_face.vertices, base_face.faces, base_face.uv * 2, base_face.face_uv, base_face.texture)
+    bare = Mesh(base_face.vertices, base_face.faces)  # no UVs, no texture
+    for mesh in (tiled, bare):
+        path = write_gltf(tmp_path / "m.glb", mesh, quantize=True)
+        gltf = pygltflib.GLTF2().load(str(path))
+        attrs = gltf.meshes[0].primitives[0].attributes
+        if mesh.uv is None:
+            assert attrs.TEXCOORD_0 is None
+        else:
+            assert gltf.accessors[attrs.TEXCOORD_0].componentType == pygltflib.FLOAT
+        pos = _accessor(gltf, attrs.POSITION) * gltf.nodes[0].scale + gltf.nodes[0].translation
+        assert np.abs(pos[: mesh.n_vertices] - mesh.vertices).max() < 1e-4 * np.linalg.norm(np.ptp(mesh.vertices, 0))
+        report = _validate(path)
+        assert report["numErrors"] == 0, report["messages"]
+
+
+def test_quantized_delta_larger_than_the_face_widens_the_scale(tmp_path, base_face):
+    big = np.zeros(base_face.vertices.shape)
+    big[:, 2] = 0.5  # half a metre: beyond the face's half-extent, so it sets the scale
+    path = write_gltf(tmp_path / "big.glb", base_face, {"push": big}, quantize=True)
+    gltf = pygltflib.GLTF2().load(str(path))
+    scale = gltf.nodes[0].scale[0]
+    assert scale == pytest.approx(0.5)
+    prim = gltf.meshes[0].primitives[0]
+    assert np.abs(_accessor(gltf, prim.targets[0]["POSITION"]) * scale - big).max() <= scale / 32767 / 2 * (1 + 1e-6)
+    pos = _accessor(gltf, prim.attributes.POSITION) * scale + gltf.nodes[0].translation
+    assert np.abs(pos - base_face.vertices).max() <= scale / 32767 / 2 * (1 + 1e-6)
