@@ -15,48 +15,89 @@ format has them; writing then reading a stream of whole values gives the same st
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
 import numpy as np
 
 from faceanim.drivers.mpeg4 import FapStream
-from faceanim.errors import InputFileError
+from faceanim.errors import FaceAnimError, InputFileError
 from faceanim.face.faps import N_FAPS
 from faceanim.io.files import atomic_output
+from faceanim.limits import MAX_FPS, MAX_FRAMES
 
 VERSION = "2.1"
+
+
+# a FAP value is a whole number of FAPU units; the largest real ones are head rotations
+# (2 pi rad = 628318 angle units). Anything beyond this is a broken file, not an animation.
+MAX_FAP_VALUE = 1e7
+# frame numbers and the integer fields of FAPs 1 and 2 (viseme, expression) are stored as int64
+MAX_FIELD = 2**31 - 1
+MAX_FAP_BYTES = 1 << 30  # 1 GiB: far above MAX_FRAMES frames of 68 values
+
+
+def _show(token: str) -> str:
+    """A token of the file, quoted for an error message when it is short and printable."""
+    return f"'{token}'" if len(token) <= 24 and token.isprintable() else f"of {len(token)} characters"
 
 
 def _number(token: str, path, line_no: int, what: str) -> float:
     try:
         value = float(token)
     except ValueError:
-        raise InputFileError(f"{path}:{line_no}: {what} '{token}' is not a number") from None
-    if not np.isfinite(value):
-        raise InputFileError(f"{path}:{line_no}: {what} '{token}' is not a finite number")
+        raise InputFileError(f"{path}:{line_no}: {what} {_show(token)} is not a number") from None
+    if not math.isfinite(value):
+        raise InputFileError(f"{path}:{line_no}: {what} {_show(token)} is not a finite number")
     return value
 
 
+def _whole(value: float, token: str, path, line_no: int, what: str, low: float, high: float) -> int:
+    if value != int(value) or not low <= value <= high:
+        raise InputFileError(f"{path}:{line_no}: {what} {_show(token)} must be a whole number from "
+                             f"{int(low)} to {int(high)}")
+    return int(value)
+
+
 def parse_fap(text: str, path: str = "<fap>") -> FapStream:
-    """A FAP stream from the text of an ASCII .fap file."""
-    lines = [(n, raw.strip()) for n, raw in enumerate(text.splitlines(), start=1)]
+    """A FAP stream from the text of an ASCII .fap file.
+
+    Refused with the line number: a missing or short header; a frame rate that is not a number,
+    not above 0 or above ``limits.MAX_FPS``; a frame count that is not whole, below 1 or above
+    ``limits.MAX_FRAMES`` (checked before anything is allocated); NUL bytes; bad mask lines;
+    values that are not finite numbers or beyond ``MAX_FAP_VALUE``; frame numbers and FAP 1/2
+    fields that are not whole numbers in int32 range.
+    """
+    nul = text.find("\0")
+    if nul >= 0:
+        raise InputFileError(f"{path}:{text.count(chr(10), 0, nul) + 1}: NUL byte: this is not a text .fap "
+                             "file")
+    lines = [(n, raw.strip()) for n, raw in enumerate(text.split("\n"), start=1)]
     lines = [(n, s) for n, s in lines if s and not s.startswith("#")]
     if not lines:
         raise InputFileError(f"{path}: no header; a .fap file starts with '2.1 <name> <fps> <frames>'")
     n0, header = lines[0]
     tokens = header.split()
     if len(tokens) < 4:
-        raise InputFileError(f"{path}:{n0}: the header needs '<version> <name> <fps> <frames>', got '{header}'")
+        raise InputFileError(f"{path}:{n0}: the header needs '<version> <name> <fps> <frames>', "
+                             f"got {len(tokens)} field(s)")
     fps = _number(tokens[-2], path, n0, "the frame rate")
     count = _number(tokens[-1], path, n0, "the frame count")
     if fps <= 0:
-        raise InputFileError(f"{path}:{n0}: the frame rate must be positive, got {tokens[-2]}")
-    if count < 0 or count != int(count):
-        raise InputFileError(f"{path}:{n0}: the frame count must be a whole number, got {tokens[-1]}")
+        raise InputFileError(f"{path}:{n0}: the frame rate must be positive, got {_show(tokens[-2])}")
+    if fps > MAX_FPS:
+        raise InputFileError(f"{path}:{n0}: the frame rate {fps:g} is above faceanim's limit of {MAX_FPS:g} fps")
+    if count != int(count) or count < 0:
+        raise InputFileError(f"{path}:{n0}: the frame count must be a whole number, got {_show(tokens[-1])}")
+    if count > MAX_FRAMES:
+        raise InputFileError(f"{path}:{n0}: the header promises {count:g} frames, more than faceanim's limit "
+                             f"of {MAX_FRAMES}")
     count = int(count)
     name = " ".join(tokens[1:-2])
     body = lines[1:]
+    if count == 0 and not body:
+        raise InputFileError(f"{path}:{n0}: the file has no frames; a .fap file needs at least one")
     if len(body) % 2:
         n, _ = body[-1]
         raise InputFileError(f"{path}:{n}: a mask line without its value line (each frame has both)")
@@ -83,29 +124,54 @@ def parse_fap(text: str, path: str = "<fap>") -> FapStream:
             raise InputFileError(f"{path}:{nv}: the mask on line {nm} sets {int(m.sum())} FAPs, so this line "
                                  f"needs {expected} numbers (frame number first), got {len(tokens)}")
         nums = [_number(t, path, nv, "value") for t in tokens]
-        numbers[k] = int(nums[0])
+        numbers[k] = _whole(nums[0], tokens[0], path, nv, "the frame number", 0, MAX_FIELD)
         pos = 1
         if m[0]:
-            viseme[k] = nums[pos:pos + 4]
+            viseme[k] = [_whole(x, t, path, nv, "a viseme field", 0, MAX_FIELD)
+                         for x, t in zip(nums[pos:pos + 4], tokens[pos:pos + 4])]
             pos += 4
         if m[1]:
-            expression[k] = nums[pos:pos + 6]
+            expression[k] = [_whole(x, t, path, nv, "an expression field", 0, MAX_FIELD)
+                             for x, t in zip(nums[pos:pos + 6], tokens[pos:pos + 6])]
             pos += 6
+        for x, t in zip(nums[pos:], tokens[pos:]):
+            if abs(x) > MAX_FAP_VALUE:
+                raise InputFileError(f"{path}:{nv}: value {_show(t)} is beyond +-{MAX_FAP_VALUE:g} FAPU units; "
+                                     "check the file")
         rest = np.flatnonzero(m[2:]) + 2
         values[k, rest] = nums[pos:]
         mask[k] = m
-    return FapStream(values, mask, fps, name, viseme, expression, numbers)
+    try:
+        return FapStream(values, mask, fps, name, viseme, expression, numbers)
+    except FaceAnimError as exc:
+        raise InputFileError(f"{path}: {exc}") from None
 
 
 def read_fap(path: str | os.PathLike) -> FapStream:
-    """Read an ASCII .fap file."""
+    """Read an ASCII .fap file (UTF-8 text; see :func:`parse_fap` for what is refused)."""
     p = Path(path)
     if not p.is_file():
+        if p.is_dir():
+            raise InputFileError(f".fap file '{p}' is a folder; give a .fap file")
         raise InputFileError(f".fap file '{p}' does not exist; check the path")
     try:
-        text = p.read_text(encoding="utf-8", errors="replace")
+        if p.stat().st_size > MAX_FAP_BYTES:
+            raise InputFileError(f".fap file '{p}' is larger than {MAX_FAP_BYTES >> 20} MiB; that is not a "
+                                 "FAP animation faceanim can play")
+        data = p.read_bytes()
     except OSError as exc:
-        raise InputFileError(f"cannot read '{p}': {exc.strerror}") from None
+        raise InputFileError(f"cannot read '{p}': {exc.strerror or 'read error'}") from None
+    nul = data.find(b"\0")
+    if nul >= 0:
+        line = data.count(b"\n", 0, nul) + 1
+        raise InputFileError(f"{p}:{line}: NUL byte: this is not a text .fap file")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise InputFileError(f"{p}:{line}: not UTF-8 text; save the .fap file as UTF-8 (or ASCII)") from None
+    if text.startswith("\ufeff"):
+        text = text[1:]  # a byte-order mark from a Windows editor
     return parse_fap(text, str(p))
 
 
