@@ -20,7 +20,7 @@ three "scale handles" per wire (the x, y and z parts of ``(s_j - 1) * w_ij (p_i 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -143,6 +143,7 @@ class BoundWires:
     weights: np.ndarray
     radial: np.ndarray
     basis: list[np.ndarray]
+    _operator: LinearDeformer | None = field(default=None, repr=False)
 
     @property
     def n_handles(self) -> int:
@@ -185,13 +186,11 @@ class BoundWires:
                               handle_names=names)
 
     def apply(self, wire_controls=None, scales=None) -> np.ndarray:
-        """Deformed vertex positions (V, 3), evaluated directly from eqs. 2-3 (no operator)."""
-        d = np.zeros_like(self.rest)
-        for j, w in enumerate(self.wires):
-            c = w.reference.control if wire_controls is None else np.asarray(wire_controls[j], dtype=np.float64)
-            s = 1.0 if scales is None else float(scales[j])
-            d += self.weights[:, j:j + 1] * ((s - 1.0) * self.radial[j] + self.basis[j] @ (c - w.reference.control))
-        return self.rest + d
+        """Deformed vertex positions (V, 3) for wire control points and scales, through the bound
+        operator (built once and kept)."""
+        if self._operator is None:
+            self._operator = self.deformer()
+        return self._operator.apply(self.offsets(wire_controls, scales))
 
 
 WEIGHT_CUTOFF = 1e-4  # blending weights below this are dropped: a share of the motion under 0.01%

@@ -1,6 +1,15 @@
-"""The Face: a mesh plus its landmarks."""
+"""The Face: a mesh plus its 478 landmarks, with the derived geometry every method needs cached.
+
+Every command starts from a Face (``Face.load``) and every rig is built on one: the face frame
+(nose-tip origin, eye and mouth scales), the skin shell, the sides of the mouth and eye slits,
+the visible face and the region an expression may move, and the MPEG-4 feature points with their
+FAPU are computed once, on first use, and kept with the face.
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -32,3 +41,106 @@ def landmarks_478(mesh: Mesh, landmarks: Landmarks) -> np.ndarray:
     moved = tps(ref)
     pos, _, _ = mesh.closest_points(moved)
     return pos
+
+
+@dataclass(eq=False)
+class Face:
+    """A mesh and its 478 MediaPipe landmark positions (``landmarks`` (478, 3), on the surface).
+
+    Build one with :meth:`load` (a mesh file, its landmarks from a file or detected) or
+    :meth:`default` (the embedded default face, whose landmarks are its own first 478 vertices:
+    nothing is detected).
+    """
+
+    mesh: Mesh
+    landmarks: np.ndarray
+
+    def __post_init__(self):
+        lm = np.asarray(self.landmarks, dtype=np.float64)
+        if lm.shape != (478, 3) or not np.all(np.isfinite(lm)):
+            raise LandmarkError(f"a face needs the 478 MediaPipe landmark positions, got shape {lm.shape}")
+        self.landmarks = lm
+
+    # ------------------------------------------------------------------ building
+    @classmethod
+    def default(cls) -> Face:
+        """The embedded default face (~30k vertices) with its embedded landmarks."""
+        from faceanim.face.default import default_face, default_landmarks
+
+        mesh = default_face()
+        return cls(mesh, default_landmarks(mesh).positions)
+
+    @classmethod
+    def load(cls, path=None, landmarks=None, forward: str = "+z", up: str = "+y") -> Face:
+        """A face from a mesh file (``None`` or ``"default"``: the embedded default face) and its
+        landmarks: from a JSON file (the 478 points or the basic 22, snapped onto the mesh) or,
+        without one, detected by rendering the mesh and running MediaPipe."""
+        from faceanim.face.landmarks import Landmarks, detect_landmarks
+        from faceanim.io.meshio import load_mesh
+
+        if path in (None, "default") and landmarks is None:
+            return cls.default()
+        if path in (None, "default"):
+            from faceanim.face.default import default_face
+
+            mesh = default_face()
+        else:
+            mesh = load_mesh(path)
+        if landmarks is not None:
+            lms = Landmarks.load(landmarks).attached_to(mesh)
+        else:
+            lms = detect_landmarks(mesh, forward=forward, up=up)
+        return cls(mesh, landmarks_478(mesh, lms))
+
+    # ------------------------------------------------------------------ derived geometry
+    @property
+    def name(self) -> str:
+        return self.mesh.name
+
+    @cached_property
+    def frame(self):
+        """The face's own frame (:class:`~faceanim.face.frame.FaceFrame`)."""
+        from faceanim.face.frame import face_frame
+
+        return face_frame(self.landmarks)
+
+    @cached_property
+    def skin(self) -> np.ndarray:
+        """(V,) bool: the skin shell (no eyeballs, teeth or tongue shells)."""
+        from faceanim.face.regions import skin
+
+        return skin(self.mesh, self.landmarks)
+
+    @cached_property
+    def slits(self) -> dict[str, np.ndarray]:
+        """Slit name (mouth, eye_L, eye_R) -> (V,) bool, True on the lower lip or lid."""
+        from faceanim.face.regions import slit_sides
+
+        return slit_sides(self.mesh, self.landmarks)
+
+    @cached_property
+    def face_region(self) -> np.ndarray:
+        """(V,) bool: the visible face inside the landmark oval."""
+        from faceanim.face.regions import face_region
+
+        return face_region(self.mesh, self.landmarks, self.frame)
+
+    @cached_property
+    def free_region(self) -> np.ndarray:
+        """(V,) bool: what an expression may move (the face grown by a margin, the jaw)."""
+        from faceanim.face.regions import free_region
+
+        return free_region(self.mesh, self.landmarks, self.frame)
+
+    @cached_property
+    def feature_points(self):
+        """The MPEG-4 feature points and FAPU (:class:`~faceanim.face.fdp.FeaturePoints`)."""
+        from faceanim.face.fdp import feature_points
+
+        return feature_points(self.mesh, self.landmarks)
+
+    def view(self, margin: float = 1.25) -> dict:
+        """Render framing on the face oval (keyword arguments of the renderer)."""
+        from faceanim.face.landmarks import FACE_OVAL
+
+        return {"frame_vertices": self.landmarks[list(FACE_OVAL)], "margin": margin}

@@ -13,7 +13,9 @@ of a frontal image.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -166,6 +168,25 @@ class Landmarks:
                          mesh.barycentric(pos, tri), self.detected_on)
 
 
+@contextlib.contextmanager
+def _native_stderr_quiet():
+    """MediaPipe's C++ code logs to file descriptor 2 whatever GLOG/TF variables say; send that to
+    /dev/null while it runs, unless FACEANIM_VERBOSE is set (``faceanim --verbose``)."""
+    if os.environ.get("FACEANIM_VERBOSE"):
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
 def detect_landmarks_in_image(rgb: np.ndarray) -> np.ndarray:
     """MediaPipe face mesh on an RGB image: (478, 3) points, x and y normalised to [0, 1].
 
@@ -180,8 +201,8 @@ def detect_landmarks_in_image(rgb: np.ndarray) -> np.ndarray:
         import mediapipe as mp
     except ImportError:
         raise LandmarkError("landmark detection needs mediapipe==0.10.21 (pip install mediapipe==0.10.21)") from None
-    with mp.solutions.face_mesh.FaceMesh(static_image_mode=True, max_num_faces=1, refine_landmarks=True,
-                                         min_detection_confidence=0.3) as fm:
+    with _native_stderr_quiet(), mp.solutions.face_mesh.FaceMesh(
+            static_image_mode=True, max_num_faces=1, refine_landmarks=True, min_detection_confidence=0.3) as fm:
         result = fm.process(img)
     if not result.multi_face_landmarks:
         raise LandmarkError("no face found in the image; check that the face is frontal, lit and large in the frame")

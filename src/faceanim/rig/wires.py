@@ -11,6 +11,7 @@ reference curves of a base face: ``extract`` (eqs. 9-13) and ``rebuild`` are inv
 
 from __future__ import annotations
 
+import itertools
 import json
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -31,6 +32,7 @@ from faceanim.face.frame import face_frame
 from faceanim.face.mesh import Mesh
 from faceanim.face.regions import past_corners, smoothstep
 from faceanim.io.files import read_json, write_json
+from faceanim.rig.rig import Rig
 
 BLENDING_FUNCTIONS = {
     "linear": lambda t: t,
@@ -326,3 +328,44 @@ def edit_template(t: WireTemplate, moves, scales) -> WireTemplate:
     for j, value in scales.items():
         s[j] = value
     return WireTemplate(t.wireset, controls, s, t.n_vertices, dict(t.meta, edited=True))
+
+
+def blend_chain(base: Mesh, lm478: np.ndarray, templates: list[WireTemplate], functions: dict[str, str],
+                frames: int) -> tuple[Rig, np.ndarray]:
+    """A feature-wise blend through a chain of templates a -> b -> c ... as a Rig and its curves.
+
+    The rig's controls are ``from`` (template a) and, per segment i and wire group g, the group's
+    share of (next - this) (``g``, or ``g@i`` for chains of more than two templates). Segment i's
+    columns follow the group's blending function over the segment and hold their end value after
+    it, so the curves (``frames`` per segment) give exactly the blended templates.
+    ``functions``: wire group -> blending function (``sqrt``, ``cubic``, samples ``0,0.2,1``...);
+    groups not named blend linearly.
+    """
+    if len(templates) < 2:
+        raise DeformError("a blend needs at least two templates")
+    for t in templates:
+        if t.n_vertices != base.n_vertices:
+            raise DeformError(f"a template was extracted on a base with {t.n_vertices} vertices; this base has "
+                              f"{base.n_vertices}")
+    groups = list(dict.fromkeys(templates[0].wireset.groups))
+    unknown = sorted(set(functions) - set(groups))
+    if unknown:
+        raise DeformError(f"no wire group {', '.join(unknown)}; the groups are {', '.join(groups)}")
+    curves_of = {g: blending_function(functions.get(g, "linear")) for g in groups}
+    bound = templates[0].wireset.bind(base, lm478)
+    shapes, columns = {}, []
+    for i, (a, b) in enumerate(itertools.pairwise(templates)):
+        seg = blend_blendshapes(a, b, bound)
+        if i == 0:
+            shapes["from"] = seg["from"]
+            columns.append((None, None))
+        for g, d in seg.items():
+            if g != "from":
+                shapes[g if len(templates) == 2 else f"{g}@{i + 1}"] = d
+                columns.append((i, curves_of[g]))
+    n_seg = len(templates) - 1
+    ts = np.linspace(0.0, float(n_seg), frames * n_seg)
+    curves = np.zeros((len(ts), len(columns)))
+    for c, (seg_i, curve) in enumerate(columns):
+        curves[:, c] = 1.0 if seg_i is None else curve(np.clip(ts - seg_i, 0.0, 1.0))
+    return Rig.from_blendshapes(base, shapes), curves

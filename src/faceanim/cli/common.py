@@ -1,0 +1,148 @@
+"""What every command shares: the face options, output paths, numbers in range, progress, writing a pose."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from faceanim.errors import FaceAnimError
+from faceanim.limits import (
+    MAX_DURATION,
+    MAX_FPS,
+    MAX_FRAMES,
+    MAX_GRID,
+    MAX_IMAGE_SIZE,
+    MIN_IMAGE_SIZE,
+    LimitError,
+    check_range,
+)
+
+DEFAULT_FPS = 25.0  # one frame rate for every animation (MPEG-4's usual 25 fps)
+DEFAULT_SIZE = 512  # pixels per side of PNG and MP4 output
+
+
+class CommandError(FaceAnimError):
+    """Options that do not go together."""
+
+
+def _arg_type(name: str, low: float, high: float, integer: bool = False, low_inclusive: bool = True):
+    def parse(text: str):
+        try:
+            return check_range(text, name, low, high, integer=integer, low_inclusive=low_inclusive)
+        except LimitError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    parse.__name__ = name.lstrip("-")
+    return parse
+
+
+FPS = _arg_type("--fps", 0.0, MAX_FPS, low_inclusive=False)
+SIZE = _arg_type("--size", MIN_IMAGE_SIZE, MAX_IMAGE_SIZE, integer=True)
+FRAMES = _arg_type("--frames", 2, MAX_FRAMES, integer=True)
+GRID = _arg_type("--grid", 8, MAX_GRID, integer=True)
+DURATION = _arg_type("--duration", 0.0, MAX_DURATION, low_inclusive=False)
+INTENSITY = _arg_type("--intensity", 0.0, 2.0)
+ANGLE = _arg_type("angle", -180.0, 180.0)
+
+
+def output_type(suffixes):
+    """An argparse type accepting paths that end in one of ``suffixes``."""
+    def check(value: str) -> str:
+        if Path(value).suffix.lower() not in suffixes:
+            raise argparse.ArgumentTypeError(f"'{value}' must end in one of: {', '.join(suffixes)}")
+        return value
+    return check
+
+
+def add_output(p, suffixes, flag: str = "-o", long: str = "--output", required: bool = True, help: str = ""):
+    p.add_argument(flag, long, required=required, type=output_type(suffixes), metavar="OUT",
+                   help=(help + " " if help else "") + f"({' '.join(suffixes)})")
+
+
+def add_face(p, aliases: tuple[str, ...] = (), positional: bool = True, landmarks: bool = True,
+             default_help: str = "the embedded default face"):
+    """The face, given the same way everywhere: ``--face MESH`` (or the positional MESH, or an
+    older alias such as ``--target``/``--base``), and ``--landmarks JSON`` instead of detection."""
+    if positional:
+        p.add_argument("face_positional", nargs="?", metavar="MESH", help="the face mesh (same as --face)")
+    p.add_argument("--face", *aliases, dest="face", metavar="MESH",
+                   help=f"the face mesh: .obj, .ply, .glb, .gltf (default: {default_help})")
+    if landmarks:
+        p.add_argument("--landmarks", metavar="JSON",
+                       help="the face's landmarks (478 MediaPipe points or the basic 22) instead of detection")
+
+
+def face_path(args, required: bool = False):
+    given = [v for v in (getattr(args, "face_positional", None), getattr(args, "face", None)) if v]
+    if len(given) == 2 and given[0] != given[1]:
+        raise CommandError(f"two faces given ('{given[0]}' and --face '{given[1]}'); give one")
+    if not given and required:
+        raise CommandError("give the mesh (MESH or --face MESH)")
+    return given[0] if given else None
+
+
+def load_face(args, required: bool = False):
+    from faceanim.face.face import Face
+
+    return Face.load(face_path(args, required), getattr(args, "landmarks", None),
+                     getattr(args, "forward", "+z"), getattr(args, "up", "+y"))
+
+
+def check_outputs(*paths) -> None:
+    """Refuse before any work: outputs that cannot be written, or one path named twice."""
+    from faceanim.io.files import check_output_path
+
+    named = [Path(p) for p in paths if p]
+    resolved = [p.resolve() for p in named]
+    for k, p in enumerate(resolved):
+        if p in resolved[:k]:
+            raise CommandError(f"'{named[k]}' is named as two outputs; give each output its own path")
+    for p in named:
+        check_output_path(p)
+
+
+def progress(total: int, desc: str, quiet: bool = False):
+    """A progress bar on a terminal (tqdm), nothing when piped or quiet."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="frame", disable=quiet or not sys.stderr.isatty(), leave=False)
+
+
+def write_pose(args, face, shapes: dict[str, np.ndarray], pose: str, weight: float) -> list[Path]:
+    """The face posed with blendshape ``pose`` at ``weight`` as OBJ/PLY or a PNG render; GLB:
+    the rest mesh with every blendshape as a morph target and a short animation of ``pose``
+    from 0 to ``weight`` and back."""
+    from faceanim.io.meshio import save_mesh
+    from faceanim.player import write_rig_gltf
+    from faceanim.render import render_png
+    from faceanim.rig.rig import Rig
+
+    rig = Rig.from_blendshapes(face.mesh, shapes)
+    out = Path(args.output)
+    suffix = out.suffix.lower()
+    if suffix == ".png":
+        render_png(face.mesh, out, vertices=rig.pose({pose: weight}), size=(args.size, args.size), yaw=12,
+                   pitch=3, **face.view())
+        return [out]
+    if suffix == ".glb":
+        curves = np.zeros((3, rig.n_controls))
+        curves[1, rig.index(pose)] = weight
+        return [write_rig_gltf(rig, curves, out, fps=1.0, name="expression", names=rig.controls,
+                               quantize=getattr(args, "compact", False))]
+    return save_mesh(face.mesh, out, vertices=rig.pose({pose: weight}))
+
+
+def report(paths) -> None:
+    print("wrote " + ", ".join(str(p) for p in paths))
+
+
+def quiet_native_logs(verbose: bool) -> None:
+    """MediaPipe and TensorFlow Lite log to stderr from C++; keep that quiet unless --verbose."""
+    if not verbose:
+        os.environ.setdefault("GLOG_minloglevel", "2")
+        os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+    else:
+        os.environ["FACEANIM_VERBOSE"] = "1"

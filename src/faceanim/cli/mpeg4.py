@@ -1,0 +1,211 @@
+"""faceanim say, fap play, fap write, direct: MPEG-4 FAPs, lip sync and scene scripts (Lee et al. 1999)."""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+
+from faceanim.cli.common import (
+    DEFAULT_FPS,
+    DURATION,
+    FPS,
+    INTENSITY,
+    SIZE,
+    CommandError,
+    add_face,
+    add_output,
+    check_outputs,
+    load_face,
+    progress,
+)
+
+
+def sound_beside(out: Path) -> Path:
+    """A free path for the sound written beside a .glb: OUT.wav, else OUT-1.wav, ... (an existing
+    file is never replaced)."""
+    candidate = out.with_suffix(".wav")
+    k = 1
+    while candidate.exists():
+        candidate = out.with_name(f"{out.stem}-{k}.wav")
+        k += 1
+    return candidate
+
+
+def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
+    """A FAP stream as .fap, .glb (+ its sound as .wav beside, named in the glb's extras) or .mp4."""
+    from faceanim.io.fapfile import write_fap
+    from faceanim.player import gltf_stream, render_stream
+
+    out = Path(args.output)
+    suffix = out.suffix.lower()
+    if suffix == ".fap":
+        return [write_fap(out, stream)]
+    if suffix == ".glb":
+        written = []
+        extras = None
+        if audio is not None:
+            wav = sound_beside(out)
+            from faceanim.io.audio import read_audio, write_wav
+
+            samples, rate = read_audio(audio)
+            written.append(write_wav(wav, samples, rate))
+            extras = {"audio": wav.name}
+        written.insert(0, gltf_stream(rig, stream, out, quantize=args.compact, extras=extras))
+        return written
+    with progress(stream.n_frames, f"rendering {out.name}", args.quiet) as bar:
+        return [render_stream(rig, stream, out, face.landmarks, size=args.size, audio=audio, progress=bar)]
+
+
+def _cmd_say(args) -> None:
+    from faceanim.drivers.mpeg4 import Action, expression_faps
+    from faceanim.drivers.speech import align, say_timed
+    from faceanim.player import speech_stream
+    from faceanim.rig.mpeg4 import FapRig
+
+    if (args.text is None) == (args.audio is None):
+        raise CommandError("give the text to say, or --audio clip.wav with --transcript clip.txt")
+    if args.audio and not args.transcript:
+        raise CommandError("--audio needs --transcript (the words spoken in it)")
+    check_outputs(args.output)
+    face = load_face(args)
+    rig = FapRig.build(face.mesh, face.landmarks)
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.audio:
+            from faceanim.io.files import read_text
+
+            wav = Path(args.audio)
+            phones = align(wav, read_text(args.transcript, "transcript"))
+        else:
+            wav = Path(tmp) / "speech.wav"
+            phones = say_timed(args.text, wav, voice=args.voice)
+        extra = []
+        if args.expression:
+            end = max(p.end for p in phones)
+            extra.append(Action(args.expression, expression_faps(args.expression), 0.0, end + 0.2,
+                                args.intensity, "linear", 0.1, 0.1, 0.3))
+        stream = speech_stream(rig.lip_gap, phones, args.fps, extra, name=Path(args.output).stem)
+        written = _write(args, rig, stream, face, wav)
+    print(f"wrote {', '.join(map(str, written))} ({stream.n_frames} frames, {len(phones)} phones, "
+          f"{stream.n_frames / stream.fps:.1f} s)")
+
+
+def _cmd_fap_play(args) -> None:
+    from faceanim.io.fapfile import read_fap
+    from faceanim.rig.mpeg4 import FapRig
+
+    check_outputs(args.output)
+    stream = read_fap(args.fap)
+    face = load_face(args)
+    rig = FapRig.build(face.mesh, face.landmarks)
+    for warning in rig.check(stream):
+        print(f"faceanim fap play: warning: {warning}", file=sys.stderr)
+    written = _write(args, rig, stream, face, Path(args.audio) if args.audio else None)
+    print(f"wrote {', '.join(map(str, written))} ({stream.n_frames} frames at {stream.fps:g} fps)")
+
+
+def _cmd_fap_write(args) -> None:
+    from types import SimpleNamespace
+
+    from faceanim.drivers.director import build_scene, scene_stream
+    from faceanim.io.fapfile import write_fap
+
+    events = []
+    if args.expression:
+        events.append({"expression": args.expression, "at": 0.0, "duration": args.duration,
+                       "intensity": args.intensity, "envelope": args.envelope})
+    if args.fap:
+        faps = {}
+        for item in args.fap:
+            if "=" not in item:
+                raise CommandError(f"--fap takes NAME=VALUE (e.g. open_jaw=300), got '{item}'")
+            k, v = item.split("=", 1)
+            faps[k] = v
+        events.append({"faps": faps, "at": 0.0, "duration": args.duration, "envelope": args.envelope})
+    if args.say:
+        events.append({"say": args.say, "at": 0.2})
+    if not events:
+        raise CommandError("give --expression, --fap NAME=VALUE and/or --say TEXT")
+    check_outputs(args.output)
+    with tempfile.TemporaryDirectory() as tmp:
+        # MPEG-4's neutral face has closed lips: no gap to close
+        scene = build_scene({"fps": args.fps, "events": events}, SimpleNamespace(lip_gap=0.0), Path(tmp))
+        stream = scene_stream(scene, Path(args.output).stem)
+        write_fap(args.output, stream)
+    print(f"wrote {args.output} ({stream.n_frames} frames at {stream.fps:g} fps)")
+
+
+def _cmd_direct(args) -> None:
+    from faceanim.cli.common import face_path
+    from faceanim.drivers.director import (
+        build_scene,
+        load_script,
+        mix_speech,
+        scene_stream,
+    )
+    from faceanim.face.face import Face
+    from faceanim.rig.mpeg4 import FapRig
+
+    check_outputs(args.output)
+    script = load_script(args.script)
+    face = Face.load(face_path(args) or script.get("face", "default"), args.landmarks)
+    rig = FapRig.build(face.mesh, face.landmarks)
+    with tempfile.TemporaryDirectory() as tmp:
+        scene = build_scene(script, rig, Path(tmp))
+        stream = scene_stream(scene, Path(args.output).stem)
+        audio = mix_speech(scene, Path(tmp) / "track.wav")
+        written = _write(args, rig, stream, face, audio)
+    print(f"wrote {', '.join(map(str, written))} ({stream.n_frames} frames, {len(scene.actions)} actions, "
+          f"{scene.duration:.1f} s)")
+
+
+def _video_options(p, suffixes) -> None:
+    add_output(p, suffixes)
+    p.add_argument("--size", type=SIZE, default=512, help="MP4 pixels per side (16..4096)")
+    p.add_argument("--compact", action="store_true", help="GLB: quantized (KHR_mesh_quantization)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def register(sub) -> None:
+    sy = sub.add_parser("say", help="lip-sync: text (synthesized) or recorded speech + transcript to an animated "
+                                    "face; .glb also writes the sound beside it (.wav)")
+    sy.add_argument("text", nargs="?", help="what to say (spoken by espeak-ng)")
+    sy.add_argument("--audio", metavar="SOUND", help="recorded speech (WAV of any sample format, FLAC, OGG) instead of text")
+    sy.add_argument("--transcript", metavar="TXT", help="text file with the words spoken in --audio")
+    add_face(sy, positional=False)
+    sy.add_argument("--expression", help="an MPEG-4 expression held while speaking (joy, sadness, ...)")
+    sy.add_argument("--intensity", type=INTENSITY, default=0.6, help="intensity of --expression (0..2)")
+    sy.add_argument("--voice", default="en-us", help="espeak-ng voice (`espeak-ng --voices` lists them)")
+    sy.add_argument("--fps", type=FPS, default=DEFAULT_FPS, help="frames per second (up to 240)")
+    _video_options(sy, [".mp4", ".glb", ".fap"])
+    sy.set_defaults(func=_cmd_say)
+
+    fp = sub.add_parser("fap", help="MPEG-4 FAP files")
+    fsub = fp.add_subparsers(dest="fap_command", required=True, metavar="{play,write}")
+    fpl = fsub.add_parser("play", help="play a .fap file on a face")
+    fpl.add_argument("fap", metavar="FAP", help="the .fap file")
+    add_face(fpl, positional=False)
+    fpl.add_argument("--audio", metavar="SOUND", help="sound to put under the video (or beside a .glb)")
+    _video_options(fpl, [".mp4", ".glb"])
+    fpl.set_defaults(func=_cmd_fap_play)
+
+    fw = fsub.add_parser("write", help="write a .fap file from an expression, FAP values or text")
+    add_output(fw, [".fap"])
+    fw.add_argument("--expression", help="joy, sadness, anger, fear, disgust or surprise")
+    fw.add_argument("--fap", action="append", metavar="NAME=VALUE", help="a FAP value (FAPU units), repeatable")
+    fw.add_argument("--say", metavar="TEXT", help="lip-sync visemes for the text (synthesized and aligned)")
+    fw.add_argument("--duration", type=DURATION, default=2.0, help="seconds of --expression / --fap (up to 3600)")
+    fw.add_argument("--intensity", type=INTENSITY, default=1.0, help="0..2")
+    fw.add_argument("--envelope", default="smooth", choices=["linear", "smooth", "peak"])
+    fw.add_argument("--fps", type=FPS, default=DEFAULT_FPS, help="frames per second (up to 240)")
+    fw.set_defaults(func=_cmd_fap_write)
+
+    di = sub.add_parser("direct", help="render a scene script (YAML or JSON): speech, expressions, head motion, "
+                                       "blinks")
+    di.add_argument("script", metavar="SCRIPT")
+    add_face(di, positional=False, default_help="the script's 'face', else the embedded default face")
+    _video_options(di, [".mp4", ".glb", ".fap"])
+    di.set_defaults(func=_cmd_direct)
+
+
+
