@@ -42,7 +42,7 @@ def test_groups_blinks_and_expressions(tmp_path):
 @pytest.mark.parametrize("data, message", [
     ("events: [\n  - {faps: {open_jaw: 1}\n", "not valid YAML"),
     ({"nothing": 1}, "list of 'events'"),
-    ({"events": [{"dance": 1}]}, "an event is one of"),
+    ({"events": [{"dance": 1}]}, "an event has one of say, expression, faps, blink, group"),
     ({"events": [{"group": "wave"}]}, "no group 'wave'"),
     ({"events": [{"faps": {"open_mouth": 10}}]}, "unknown FAP"),
     ({"events": [{"expression": "joy", "envelope": "square"}]}, "envelope"),

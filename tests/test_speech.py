@@ -11,7 +11,7 @@ from conftest import DATA, need
 from faceanim.cli import main
 from faceanim.drivers.mpeg4 import Action, blend_actions, expression_faps, fap_set
 from faceanim.drivers.speech import Phone, phone_viseme, viseme_actions
-from faceanim.drivers.speech.phonemes import SpeechError, words_of
+from faceanim.drivers.speech.phonemes import SpeechError, check_text, words_of
 from faceanim.face.faps import FapError
 
 SPEECH = DATA / "speech-librivox"
@@ -71,14 +71,18 @@ def test_words_and_text_without_words():
     assert words_of("Hello, how are you?") == ["hello", "how", "are", "you"]
     with pytest.raises(SpeechError, match="no words"):
         words_of(" ,.!? ")
+    with pytest.raises(SpeechError) as err:
+        words_of("... !!! ???", "the transcript")
+    assert "the transcript" in str(err.value) and "!!!" not in str(err.value)  # the text is not echoed
 
 
 def test_alignment_of_real_speech():
-    from faceanim.drivers.speech import align, load_wav
+    from faceanim.drivers.speech import align
+    from faceanim.io.audio import read_audio
 
     wav = need(SPEECH / "clip-0880.wav")
     phones = align(wav, (SPEECH / "clip-0880.txt").read_text())
-    x, rate = load_wav(wav)
+    x, rate = read_audio(wav)
     starts = [p.start for p in phones]
     assert starts == sorted(starts) and phones[-1].end <= len(x) / rate + 0.02
     assert sum(p.phone != "SIL" for p in phones) > 15
@@ -141,11 +145,148 @@ def test_say_with_recorded_speech_and_a_valid_glb(tmp_path):
     out = tmp_path / "clip.mp4"
     assert main(["say", "--audio", str(wav), "--transcript", str(SPEECH / "clip-0880.txt"), "--size", "96",
                  "-o", str(out)]) == 0
-    info = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-i", str(out)], capture_output=True, text=True).stderr
+    info = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-i", str(out)], capture_output=True, text=True,
+                          check=False).stderr
     assert "Audio:" in info and "Video:" in info
     glb = tmp_path / "clip.glb"
     assert main(["say", "--audio", str(wav), "--transcript", str(SPEECH / "clip-0880.txt"), "-o", str(glb)]) == 0
     validator = ROOT / "tools" / "validate_gltf.js"
     if shutil.which("node") and (ROOT / "tools" / "node_modules" / "gltf-validator").exists():
-        report = json.loads(subprocess.run(["node", str(validator), str(glb)], capture_output=True, text=True).stdout)
+        report = json.loads(subprocess.run(["node", str(validator), str(glb)], capture_output=True, text=True,
+                                           check=False).stdout)
         assert report["numErrors"] == 0
+
+
+# ----------------------------------------------------------------------------------- text and voices
+
+
+def test_text_to_say_is_checked_before_any_process(monkeypatch, tmp_path):
+    from faceanim.drivers.speech import say_timed, synthesize
+    from faceanim.limits import MAX_TEXT
+
+    monkeypatch.setenv("PATH", str(tmp_path))  # no espeak-ng: the text is refused first anyway
+    for text, message in (("", "is empty"), ("   \n\t", "is empty"), ("?!", "no words"),
+                          ("a " * (MAX_TEXT // 2 + 1), f"at most {MAX_TEXT}"), (None, "must be a string")):
+        for fn in (say_timed, synthesize):
+            with pytest.raises(SpeechError, match=message):
+                fn(text, tmp_path / "x.wav")
+    assert check_text("a" * MAX_TEXT) == "a" * MAX_TEXT
+    with pytest.raises(SpeechError) as err:
+        check_text("b" * (MAX_TEXT + 1))
+    assert str(err.value) == (f"the text to say has {MAX_TEXT + 1} characters; faceanim speaks at most {MAX_TEXT} "
+                              "at once: split it into several parts")
+    with pytest.raises(SpeechError, match="not installed"):
+        say_timed("hello", tmp_path / "x.wav")
+    assert not (tmp_path / "x.wav").exists()
+
+
+@has_espeak
+def test_voices_are_checked_against_the_installed_list():
+    from faceanim.drivers.speech import check_voice, espeak_voices
+
+    listed = subprocess.run(["espeak-ng", "--voices"], capture_output=True, text=True, check=True).stdout
+    languages = [line.split()[1] for line in listed.splitlines()[1:]]
+    files = [line.split()[4] for line in listed.splitlines()[1:]]
+    voices = espeak_voices()
+    assert voices == sorted(voices) and "en-us" in voices and set(languages) <= set(voices)
+    assert check_voice("en-us") == "en-us" and check_voice("EN-US") == "en-us"
+    assert check_voice(files[languages.index("en-us")]) == files[languages.index("en-us")]  # gmw/en-US
+    assert check_voice("en") == "en"  # a language a voice answers to ('(en 3)')
+    assert check_voice("en-us+f3") == "en-us+f3"
+    with pytest.raises(SpeechError) as err:
+        check_voice("../../../../etc/passwd")
+    assert str(err.value) == ("unknown espeak-ng voice '../../../../etc/passwd'; run `espeak-ng --voices` to list "
+                              "them (e.g. en-us)")
+    with pytest.raises(SpeechError) as err:
+        check_voice("en-gbb")
+    hint = str(err.value).split("(e.g. ")[1].rstrip(")").split(", ")
+    assert "en-gb" in hint and len(hint) <= 3
+    with pytest.raises(SpeechError, match="unknown espeak-ng voice variant 'nope'"):
+        check_voice("en-us+nope")
+    for bad in ("", "en-us\nroot:x:0:0", None, 3):
+        with pytest.raises(SpeechError, match="unknown espeak-ng voice") as err:
+            check_voice(bad)
+        assert "\n" not in str(err.value)
+
+
+def _fake_espeak(tmp_path, secret: str):
+    """An espeak-ng that lists one voice and fails every synthesis, printing a secret."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    exe = bin_dir / "espeak-ng"
+    exe.write_text(
+        "#!/bin/sh\n"
+        'case "$1" in\n'
+        "  --voices) echo 'Pty Language Age/Gender VoiceName File Other Languages';"
+        " echo ' 2  en-us --/M English_(America) gmw/en-US (en 3)'; exit 0;;\n"
+        "  --voices=variant) echo 'Pty Language Age/Gender VoiceName File Other Languages'; exit 0;;\n"
+        "esac\n"
+        f"echo '{secret}' >&2\necho '{secret}'\nexit 1\n")
+    exe.chmod(0o755)
+    return bin_dir
+
+
+def test_espeak_output_never_reaches_an_error(monkeypatch, tmp_path, caplog):
+    import logging
+
+    from faceanim.drivers.speech import say_timed, synthesize
+
+    secret = "root:x:0:0:root:/root:/bin/bash"
+    monkeypatch.setenv("PATH", str(_fake_espeak(tmp_path, secret)))
+    with caplog.at_level(logging.DEBUG, logger="faceanim.drivers.speech.phonemes"):
+        for fn in (synthesize, say_timed):
+            with pytest.raises(SpeechError) as err:
+                fn("hello", tmp_path / "x.wav", voice="en-us")
+            assert secret not in str(err.value) and "root" not in str(err.value)
+            assert "espeak-ng could not synthesize speech with voice 'en-us'" in str(err.value)
+    assert secret in caplog.text  # logged at debug level only
+    with pytest.raises(SpeechError, match="unknown espeak-ng voice 'fr'"):
+        synthesize("hello", tmp_path / "x.wav", voice="fr")  # this espeak-ng lists only en-us
+
+
+@has_espeak
+def test_synthesize_reads_the_text_from_stdin(tmp_path):
+    """Text that looks like an option is spoken, not parsed as one."""
+    from faceanim.drivers.speech import synthesize
+    from faceanim.drivers.speech.phonemes import SENTENCE_WPM, WORD_WPM, check_speed
+    from faceanim.io.audio import read_audio
+
+    out = synthesize("--help -w /tmp/evil.wav hello", tmp_path / "s.wav")
+    x, rate = read_audio(out)
+    assert rate == 22050 and len(x) > rate and np.abs(x).max() > 0.1
+    assert (WORD_WPM, SENTENCE_WPM) == (175, 160)
+    with pytest.raises(Exception, match="speaking rate"):
+        check_speed(1000)
+
+
+@has_espeak
+def test_say_timed_is_repeatable(tmp_path):
+    from faceanim.drivers.speech import say_timed
+    from faceanim.drivers.speech.phonemes import SAMPLE_RATE
+    from faceanim.io.audio import read_audio
+
+    a = say_timed("Hello, world.", tmp_path / "a.wav")
+    b = say_timed("Hello, world.", tmp_path / "b.wav", voice="EN-US")
+    assert a == b and [p.phone for p in a if p.phone != "SIL"][:4] == ["HH", "AH", "L", "OW"]
+    xa, ra = read_audio(tmp_path / "a.wav")
+    xb, rb = read_audio(tmp_path / "b.wav")
+    assert ra == rb == SAMPLE_RATE
+    np.testing.assert_array_equal(xa, xb)
+    assert a[-1].phone == "SIL" and a[-1].end - a[-1].start == pytest.approx(0.4)  # the pause at '.'
+    assert a[-1].end == pytest.approx(len(xa) / SAMPLE_RATE, abs=1e-3)  # phone times are the track's times
+
+
+@has_espeak
+def test_say_command_refuses_bad_voices_and_texts(tmp_path, capsys):
+    from faceanim.limits import MAX_TEXT
+
+    out = tmp_path / "x.fap"
+    assert main(["say", "hello", "--voice", "../../../../../../etc/passwd", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.endswith("unknown espeak-ng voice '../../../../../../etc/passwd'; run `espeak-ng --voices` to "
+                        "list them (e.g. en-us)")
+    assert main(["say", "", "-o", str(out)]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].endswith("the text to say is empty; give the words to speak")
+    assert main(["say", "x" * (MAX_TEXT + 1), "-o", str(out)]) == 2
+    assert f"faceanim speaks at most {MAX_TEXT}" in capsys.readouterr().err
+    assert not out.exists()

@@ -21,6 +21,8 @@ MAX_GRID = 1000  # vertices per side of a resampling grid (10^6 vertices)
 MAX_ACTIONS = 100_000  # actions on one timeline (visemes, blinks, expressions)
 MAX_NESTING = 8  # groups inside groups in a scene script
 MAX_TEXT = 10_000  # characters of text to speak
+MAX_SAMPLE_RATE = 192_000  # samples per second of audio in or out (the highest common studio rate;
+#                             an hour of it is 2.8 GB of float32 mono)
 
 
 class LimitError(FaceAnimError):

@@ -1,13 +1,18 @@
 """Speech: timed phonemes from text (synthesized with espeak-ng) or from recorded speech and its
-transcript (forced alignment with pocketsphinx), and co-articulated visemes."""
+transcript (forced alignment with pocketsphinx), and co-articulated visemes. Audio files are read
+and written by :mod:`faceanim.io.audio`."""
 
 from faceanim.drivers.speech.phonemes import (
     Phone,
+    SpeechError,
     align,
-    load_wav,
+    check_text,
+    check_voice,
+    espeak_voices,
     say_timed,
     synthesize,
 )
 from faceanim.drivers.speech.visemes import phone_viseme, viseme_actions
 
-__all__ = ["Phone", "align", "load_wav", "phone_viseme", "say_timed", "synthesize", "viseme_actions"]
+__all__ = ["Phone", "SpeechError", "align", "check_text", "check_voice", "espeak_voices", "phone_viseme",
+           "say_timed", "synthesize", "viseme_actions"]

@@ -5,23 +5,44 @@ transcript's words are looked up (unknown words are refused by name), the audio 
 10 ms frames, and the ARPAbet phones come back with their start and end times. Synthesis runs
 espeak-ng (installed by ``scripts/setup.sh``) to a WAV file; the synthesized audio is then
 aligned the same way, so text and recorded speech give timings by one method.
+
+Audio is read, written and resampled by :mod:`faceanim.io.audio` (libsndfile). espeak-ng's voice
+is checked against the voices it lists before it runs, and its own output is never shown in an
+error (it is logged at debug level): a voice "name" can be any path, and espeak-ng prints the
+lines of a file it cannot parse as a voice.
 """
 
 from __future__ import annotations
 
+import difflib
+import logging
 import re
 import shutil
 import subprocess
-import wave
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from faceanim.errors import FaceAnimError, InputFileError
+from faceanim.errors import FaceAnimError
+from faceanim.io.audio import check_rate, read_audio, resample, write_wav
+from faceanim.limits import MAX_DURATION, MAX_TEXT
+
+log = logging.getLogger(__name__)
 
 SAMPLE_RATE = 16000  # what the pocketsphinx model expects
 FRAME = 0.01  # pocketsphinx frame length, seconds
+
+# espeak-ng speaking rates, words per minute. say_timed speaks one word per espeak-ng call and adds
+# its own gaps and pauses, so it uses espeak-ng's own default rate (175); synthesize speaks a whole
+# sentence in one call that is then aligned as a whole, and a slightly slower rate gives the aligner
+# longer phones to find on the robotic voice.
+WORD_WPM = 175
+SENTENCE_WPM = 160
+MIN_WPM, MAX_WPM = 80, 450  # the range espeak-ng's -s accepts
+DEFAULT_VOICE = "en-us"
+ESPEAK_TIMEOUT = 600.0  # seconds for one espeak-ng call (MAX_TEXT characters take well under that)
 
 
 class SpeechError(FaceAnimError):
@@ -40,65 +61,155 @@ class Phone:
         return 0.5 * (self.start + self.end)
 
 
-def words_of(text: str) -> list[str]:
+def check_text(text, what: str = "the text to say") -> str:
+    """``text`` if it is a string of 1 to :data:`~faceanim.limits.MAX_TEXT` characters with a word
+    in it; else a :class:`SpeechError` saying what to do. Checked before any process starts."""
+    if not isinstance(text, str):
+        raise SpeechError(f"{what} must be a string of words, got {type(text).__name__}")
+    if not text.strip():
+        raise SpeechError(f"{what} is empty; give the words to speak")
+    if len(text) > MAX_TEXT:
+        raise SpeechError(f"{what} has {len(text)} characters; faceanim speaks at most {MAX_TEXT} at once: "
+                          "split it into several parts")
+    words_of(text, what)
+    return text
+
+
+def words_of(text: str, what: str = "the text") -> list[str]:
     """The speakable words of ``text``, lower case (letters, digits spelled as written, apostrophes)."""
     words = re.findall(r"[a-z0-9']+", str(text).lower())
     words = [w.strip("'") for w in words if w.strip("'")]
     if not words:
-        raise SpeechError(f"there are no words to speak in {text!r}")
+        raise SpeechError(f"there are no words to speak in {what} (only spaces or punctuation); "
+                          "give words made of letters or digits")
     return words
 
 
-def load_wav(path) -> tuple[np.ndarray, int]:
-    """Mono float samples in [-1, 1] and the sample rate of a PCM WAV file."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"audio file '{p}' does not exist; check the path")
-    try:
-        with wave.open(str(p)) as w:
-            rate, channels, width = w.getframerate(), w.getnchannels(), w.getsampwidth()
-            raw = w.readframes(w.getnframes())
-    except (wave.Error, EOFError) as exc:
-        raise InputFileError(f"'{p}' is not a PCM WAV file ({exc})") from None
-    if width != 2:
-        raise InputFileError(f"'{p}': only 16-bit PCM WAV is read, this one has {8 * width}-bit samples")
-    x = np.frombuffer(raw, dtype="<i2").astype(np.float64) / 32768.0
-    if channels > 1:
-        x = x.reshape(-1, channels).mean(1)
-    if x.size == 0:
-        raise InputFileError(f"'{p}' holds no audio")
-    return x, rate
+def _shown(value, limit: int = 40) -> str:
+    """A user-given name as it may appear in a one-line message: printable, at most ``limit`` long."""
+    s = "".join(c if c.isprintable() else "?" for c in str(value))
+    return s if len(s) <= limit else s[:limit - 3] + "..."
 
 
-def resample(x: np.ndarray, rate: int, to: int = SAMPLE_RATE) -> np.ndarray:
-    """Samples at ``rate`` resampled to ``to`` (polyphase filter)."""
-    if rate == to:
-        return np.asarray(x, dtype=np.float64)
-    from math import gcd
-
-    from scipy.signal import resample_poly
-
-    g = gcd(rate, to)
-    return resample_poly(x, to // g, rate // g)
+# ----------------------------------------------------------------------------------- espeak-ng
 
 
-def _pcm16(x: np.ndarray) -> bytes:
-    return (np.clip(x, -1, 1) * 32767).astype("<i2").tobytes()
+def _espeak() -> str:
+    exe = shutil.which("espeak-ng")
+    if exe is None:
+        raise SpeechError("espeak-ng is not installed; run scripts/setup.sh (it installs Debian's espeak-ng)")
+    return exe
 
 
-def _to_16k(x: np.ndarray, rate: int) -> bytes:
-    return _pcm16(resample(x, rate))
+def _parse_voices(listing: str) -> dict[str, str]:
+    """``espeak-ng --voices`` output -> {lower-case name: name as listed}: each voice's language
+    code, its file name (e.g. gmw/en-US) and the other language codes it answers to ('(en 3)')."""
+    names: dict[str, str] = {}
+    others: dict[str, str] = {}
+    for line in listing.splitlines()[1:]:  # the first line is the header
+        fields = line.split()
+        if len(fields) < 5 or not fields[0].isdigit():
+            continue
+        language, file = fields[1], fields[4]
+        names.setdefault(language.lower(), language)
+        names.setdefault(file.lower(), file)
+        for other in re.findall(r"\(([^\s()]+)\s+\d+\)", " ".join(fields[5:])):
+            others.setdefault(other.lower(), other)
+    for key, value in others.items():
+        names.setdefault(key, value)
+    return names
 
 
-def write_wav(path, samples: np.ndarray, rate: int = SAMPLE_RATE) -> Path:
-    """Mono float samples in [-1, 1] as a 16-bit PCM WAV file."""
-    out = Path(path)
-    with wave.open(str(out), "wb") as w:
-        w.setnchannels(1)
-        w.setsampwidth(2)
-        w.setframerate(rate)
-        w.writeframes(_pcm16(samples))
+def _parse_variants(listing: str) -> dict[str, str]:
+    """``espeak-ng --voices=variant`` output -> {lower-case variant: variant} (e.g. 'f3', 'Alex')."""
+    out: dict[str, str] = {}
+    for line in listing.splitlines()[1:]:
+        fields = line.split()
+        if len(fields) >= 5 and fields[4].startswith("!v/"):
+            out.setdefault(fields[4][3:].lower(), fields[4][3:])
     return out
+
+
+def _run_listing(exe: str, option: str) -> str:
+    try:
+        result = subprocess.run([exe, option], capture_output=True, text=True, check=False, timeout=60)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        log.debug("espeak-ng %s failed: %s", option, exc)
+        raise SpeechError("espeak-ng could not list its voices; check the installation with "
+                          "`espeak-ng --voices`") from None
+    if result.returncode != 0:
+        log.debug("espeak-ng %s exited %s: %s", option, result.returncode, result.stderr)
+        raise SpeechError(f"espeak-ng could not list its voices (exit code {result.returncode}); check the "
+                          "installation with `espeak-ng --voices`")
+    return result.stdout
+
+
+@lru_cache(maxsize=4)
+def _voice_tables(exe: str) -> tuple[dict[str, str], dict[str, str]]:
+    voices = _parse_voices(_run_listing(exe, "--voices"))
+    if not voices:
+        raise SpeechError("espeak-ng lists no voices; check the installation with `espeak-ng --voices`")
+    try:
+        variants = _parse_variants(_run_listing(exe, "--voices=variant"))
+    except SpeechError:
+        variants = {}
+    return voices, variants
+
+
+def espeak_voices() -> list[str]:
+    """The voice names espeak-ng accepts here (language codes and voice files as it lists them),
+    sorted; read once per process."""
+    return sorted(set(_voice_tables(_espeak())[0].values()))
+
+
+def check_voice(voice) -> str:
+    """The espeak-ng voice ``voice`` as espeak-ng lists it (``en-us``, ``EN-US`` -> ``en-us``;
+    ``gmw/en-US``; a variant after '+', ``en-us+f3``), or a :class:`SpeechError` naming it with a
+    few close matches. Nothing but listed names ever reaches espeak-ng."""
+    voices, variants = _voice_tables(_espeak())
+    name = voice if isinstance(voice, str) else ""
+    base, plus, variant = name.partition("+")
+    canonical = voices.get(base.lower())
+    if canonical is not None and plus:
+        v = variants.get(variant.lower())
+        if v is None:
+            close = difflib.get_close_matches(variant.lower(), sorted(variants), n=3, cutoff=0.6)
+            hint = ", ".join(f"{canonical}+{variants[c]}" for c in close) or f"{canonical}+f3"
+            raise SpeechError(f"unknown espeak-ng voice variant '{_shown(variant)}'; run "
+                              f"`espeak-ng --voices=variant` to list them (e.g. {hint})")
+        return f"{canonical}+{v}"
+    if canonical is None:
+        codes = sorted({v for v in voices.values() if "/" not in v})
+        close = difflib.get_close_matches(base.lower(), [c.lower() for c in codes], n=3, cutoff=0.6)
+        hint = ", ".join(voices[c] for c in close) or DEFAULT_VOICE
+        raise SpeechError(f"unknown espeak-ng voice '{_shown(voice)}'; run `espeak-ng --voices` to list them "
+                          f"(e.g. {hint})")
+    return canonical
+
+
+def check_speed(speed) -> int:
+    """An espeak-ng speaking rate in words per minute (80-450)."""
+    from faceanim.limits import check_range
+
+    return check_range(speed, "the speaking rate (words per minute)", MIN_WPM, MAX_WPM, integer=True)
+
+
+def _espeak_wav(exe: str, text: str, out: Path, voice: str, speed: int) -> None:
+    """Run espeak-ng on ``text`` (given on stdin, so no text is ever read as an option) into ``out``."""
+    try:
+        result = subprocess.run([exe, "-v", voice, "-s", str(speed), "-w", str(out), "--stdin"], input=text,
+                                capture_output=True, text=True, check=False, timeout=ESPEAK_TIMEOUT)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        log.debug("espeak-ng failed to run: %s", exc)
+        raise SpeechError("espeak-ng could not be run; check it with `espeak-ng -v en-us hello`") from None
+    if result.stderr.strip() or result.stdout.strip():
+        log.debug("espeak-ng said: %s %s", result.stdout.strip(), result.stderr.strip())
+    if result.returncode != 0 or not out.is_file() or out.stat().st_size == 0:
+        raise SpeechError(f"espeak-ng could not synthesize speech with voice '{voice}' (exit code "
+                          f"{result.returncode}); check it with `espeak-ng -v {voice} hello`")
+
+
+# ----------------------------------------------------------------------------------- alignment
 
 
 def _decoder():
@@ -107,22 +218,32 @@ def _decoder():
     return Decoder(samprate=SAMPLE_RATE, loglevel="FATAL")
 
 
+def _pcm16_bytes(x: np.ndarray) -> bytes:
+    """16 kHz float samples as the signed 16-bit little-endian bytes pocketsphinx reads."""
+    return (np.clip(x, -1, 1) * 32767).astype("<i2").tobytes()
+
+
 def align(audio, transcript: str, rate: int | None = None, decoder=None) -> list[Phone]:
-    """Timed phones of ``transcript`` in ``audio`` (a WAV path, or samples with ``rate``);
-    ``decoder`` reuses a pocketsphinx decoder (loading the model takes ~0.3 s)."""
+    """Timed phones of ``transcript`` in ``audio`` (an audio file - WAV, FLAC, OGG, ... - or samples
+    with their ``rate``); ``decoder`` reuses a pocketsphinx decoder (loading the model takes ~0.3 s)."""
     if isinstance(audio, (str, Path)):
-        x, rate = load_wav(audio)
+        x, rate = read_audio(audio)
     else:
-        x = np.asarray(audio, dtype=np.float64)
         if rate is None:
             raise SpeechError("give the sample rate of the audio samples")
-    words = words_of(transcript)
+        rate = check_rate(rate)
+        x = np.asarray(audio, dtype=np.float32)
+        if x.ndim != 1 or x.size == 0 or not np.all(np.isfinite(x)):
+            raise SpeechError("audio samples must be a non-empty 1-D array of finite numbers")
+        if x.size / rate > MAX_DURATION:
+            raise SpeechError(f"the audio is longer than {MAX_DURATION:g} s; align it in shorter pieces")
+    words = words_of(transcript, "the transcript")
     dec = decoder or _decoder()
     unknown = [w for w in dict.fromkeys(words) if dec.lookup_word(w) is None]
     if unknown:
-        raise SpeechError(f"the pronunciation dictionary does not know: {', '.join(unknown[:8])}; "
+        raise SpeechError(f"the pronunciation dictionary does not know: {', '.join(map(_shown, unknown[:8]))}; "
                           "spell numbers and abbreviations out as words")
-    raw = _to_16k(x, rate)
+    raw = _pcm16_bytes(resample(x, rate, SAMPLE_RATE))
     duration = len(raw) / 2 / SAMPLE_RATE
     if duration < 0.1 * len(words):
         raise SpeechError(f"{duration:.2f} s of audio is too short for {len(words)} words; "
@@ -138,7 +259,8 @@ def align(audio, transcript: str, rate: int | None = None, decoder=None) -> list
         dec.end_utt()
         alignment = dec.get_alignment()
     except (RuntimeError, ValueError) as exc:
-        raise SpeechError(f"the audio could not be aligned with its transcript ({exc}); "
+        log.debug("pocketsphinx failed: %s", exc)
+        raise SpeechError("the audio could not be aligned with its transcript; "
                           "does the audio match its transcript?") from None
     phones = []
     for word in alignment or []:
@@ -157,30 +279,26 @@ def align(audio, transcript: str, rate: int | None = None, decoder=None) -> list
     return phones
 
 
-def synthesize(text: str, wav_path, voice: str = "en-us", speed: int = 160) -> Path:
-    """Speak ``text`` with espeak-ng into a 16-bit WAV file."""
-    words_of(text)  # refuse text with nothing to say before starting a process
+def synthesize(text: str, wav_path, voice: str = DEFAULT_VOICE, speed: int = SENTENCE_WPM) -> Path:
+    """Speak ``text`` with espeak-ng into a WAV file (espeak-ng's own rate, 22.05 kHz)."""
+    check_text(text)  # refuse text with nothing to say before starting a process
+    speed = check_speed(speed)
     exe = _espeak()
+    voice = check_voice(voice)
     out = Path(wav_path)
-    result = subprocess.run([exe, "-v", voice, "-s", str(int(speed)), "-w", str(out), str(text)],
-                            capture_output=True, text=True, check=False)
-    if result.returncode != 0 or not out.is_file():
-        raise SpeechError(f"espeak-ng failed: {result.stderr.strip() or result.returncode}")
+    _espeak_wav(exe, text, out, voice, speed)
     return out
-
-
-def _espeak() -> str:
-    exe = shutil.which("espeak-ng")
-    if exe is None:
-        raise SpeechError("espeak-ng is not installed; run scripts/setup.sh (it installs Debian's espeak-ng)")
-    return exe
 
 
 PAUSES = {",": 0.2, ";": 0.25, ":": 0.25, ".": 0.4, "?": 0.4, "!": 0.4}
 WORD_GAP = 0.02
 
 
-def say_timed(text: str, wav_path, voice: str = "en-us", speed: int = 175) -> list[Phone]:
+def _silence(seconds: float) -> np.ndarray:
+    return np.zeros(round(seconds * SAMPLE_RATE), dtype=np.float32)
+
+
+def say_timed(text: str, wav_path, voice: str = DEFAULT_VOICE, speed: int = WORD_WPM) -> list[Phone]:
     """Speak ``text`` word by word with espeak-ng into one 16 kHz WAV and return its timed phones.
 
     Each word is synthesized alone and aligned alone (short and therefore robust: aligning a whole
@@ -189,34 +307,31 @@ def say_timed(text: str, wav_path, voice: str = "en-us", speed: int = 175) -> li
     """
     import tempfile
 
-    tokens = re.findall(r"[A-Za-z0-9']+|[,;:.?!]", str(text))
-    words = [t for t in tokens if t not in PAUSES]
-    words_of(" ".join(words) or text)  # nothing to say -> a clear error
+    check_text(text)
+    speed = check_speed(speed)
     exe = _espeak()
+    voice = check_voice(voice)
+    tokens = re.findall(r"[A-Za-z0-9']+|[,;:.?!]", text)
+    tokens = [t for t in tokens if t in PAUSES or t.strip("'")]
     dec = _decoder()
+    for token in tokens:  # every word known before any synthesis
+        word = token.lower().strip("'")
+        if token not in PAUSES and dec.lookup_word(word) is None:
+            raise SpeechError(f"the pronunciation dictionary does not know '{_shown(word)}'; "
+                              "spell numbers and abbreviations out as words")
     pieces, phones, clock = [], [], 0.0
-
-    def silence(seconds: float) -> np.ndarray:
-        return np.zeros(round(seconds * SAMPLE_RATE))
-
     with tempfile.TemporaryDirectory() as tmp:
         for token in tokens:
             if token in PAUSES:
-                pieces.append(silence(PAUSES[token]))
+                pieces.append(_silence(PAUSES[token]))
                 phones.append(Phone("SIL", clock, clock + PAUSES[token]))
                 clock += PAUSES[token]
                 continue
             word = token.lower().strip("'")
-            if dec.lookup_word(word) is None:
-                raise SpeechError(f"the pronunciation dictionary does not know '{word}'; "
-                                  "spell numbers and abbreviations out as words")
             path = Path(tmp) / "w.wav"
-            result = subprocess.run([exe, "-v", voice, "-s", str(int(speed)), "-w", str(path), token],
-                                    capture_output=True, text=True, check=False)
-            if result.returncode != 0:
-                raise SpeechError(f"espeak-ng failed on '{token}': {result.stderr.strip()}")
-            x, rate = load_wav(path)
-            x = resample(x, rate)
+            _espeak_wav(exe, token, path, voice, speed)
+            x, rate = read_audio(path, "espeak-ng output")
+            x = resample(x, rate, SAMPLE_RATE)
             loud = np.flatnonzero(np.abs(x) > 0.02)
             x = x[max(loud[0] - 160, 0):loud[-1] + 160] if len(loud) else x
             try:
@@ -230,7 +345,7 @@ def say_timed(text: str, wav_path, voice: str = "en-us", speed: int = 175) -> li
             phones += [Phone(p.phone, clock + p.start, clock + p.end, word) for p in word_phones]
             pieces.append(x)
             clock += len(x) / SAMPLE_RATE
-            pieces.append(silence(WORD_GAP))
+            pieces.append(_silence(WORD_GAP))
             clock += WORD_GAP
-    write_wav(wav_path, np.concatenate(pieces))
+    write_wav(wav_path, np.concatenate(pieces), SAMPLE_RATE)
     return phones
