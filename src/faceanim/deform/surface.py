@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
+from threadpoolctl import threadpool_limits
 
 from faceanim.deform.base import LinearDeformer
 from faceanim.errors import DeformError
@@ -108,14 +109,17 @@ def bind_surface(rest, faces, handle_triangles, handle_barycentric, free=None,
     c = cf.ravel()[keep.ravel()]
     con = sp.csr_matrix((bary.ravel()[keep.ravel()], (r, c)), shape=(h, len(fr)))
     kkt = sp.bmat([[q, con.T], [con, None]]).tocsc()
-    try:
-        lu = spl.splu(kkt)
-    except RuntimeError:
-        raise DeformError("the surface system is singular: two handles coincide or share one "
-                          "vertex; remove the duplicate or move it apart") from None
-    rhs = np.zeros((len(fr) + h, h))
-    rhs[len(fr):] = np.eye(h)
-    w = lu.solve(rhs)[: len(fr)]
+    # SuperLU calls BLAS on small dense blocks: two OpenBLAS threads on a busy 2-core machine
+    # slow the factorisation 2-8x, so the solve runs with one (benchmarks/bench_facs.py)
+    with threadpool_limits(limits=1, user_api="blas"):
+        try:
+            lu = spl.splu(kkt)
+        except RuntimeError:
+            raise DeformError("the surface system is singular: two handles coincide or share one "
+                              "vertex; remove the duplicate or move it apart") from None
+        rhs = np.zeros((len(fr) + h, h))
+        rhs[len(fr):] = np.eye(h)
+        w = lu.solve(rhs)[: len(fr)]
     if not np.all(np.isfinite(w)):
         raise DeformError("the surface system is singular: two handles coincide; move them apart")
     return LinearDeformer(rest, w, fr, handle_names=handle_names)

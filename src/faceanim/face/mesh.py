@@ -125,7 +125,12 @@ class Mesh:
 
     def vertex_normals(self, vertices: np.ndarray | None = None) -> np.ndarray:
         """Area-weighted unit vertex normals, for the rest pose or for ``vertices``."""
-        return vertex_normals(self.vertices if vertices is None else vertices, self.faces)
+        return vertex_normals(self.vertices if vertices is None else vertices, self.faces, self.face_incidence)
+
+    @cached_property
+    def face_incidence(self) -> sp.csr_matrix:
+        """(V, T) sparse: 1 where vertex v is a corner of triangle t (sums over each vertex's fan)."""
+        return face_incidence(self.faces, self.n_vertices)
 
     # ------------------------------------------------------------------ queries
     def closest_points(self, points, triangles=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -237,12 +242,24 @@ class Mesh:
         return np.concatenate(source), new_corner.reshape(-1, 3), self.uv[uv_index]
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals."""
+def face_incidence(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
+    """(V, T) sparse vertex x triangle incidence (1 per corner; a triangle that names a vertex
+    twice counts it twice)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    t = len(faces)
+    m = sp.csr_matrix((np.ones(3 * t), (faces.ravel(), np.repeat(np.arange(t), 3))), shape=(n_vertices, t))
+    m.sum_duplicates()
+    return m
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray, incidence: sp.csr_matrix | None = None) -> np.ndarray:
+    """Area-weighted unit vertex normals: the sum of the adjacent triangles' (unnormalised) normals,
+    one sparse product with the vertex x triangle incidence (pass ``incidence`` to reuse it)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
     a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
     fn = np.cross(b - a, c - a)
-    n = np.zeros_like(vertices)
-    for i in range(3):
-        np.add.at(n, faces[:, i], fn)
+    if incidence is None:
+        incidence = face_incidence(faces, len(vertices))
+    n = np.asarray(incidence @ fn)
     length = np.linalg.norm(n, axis=1, keepdims=True)
     return n / np.where(length > 0, length, 1.0)
