@@ -29,11 +29,21 @@ import scipy.sparse as sp
 from scipy.sparse import csgraph
 
 from faceanim.deform.base import LinearDeformer
-from faceanim.deform.rbf import DEFAULT_SMOOTHING, KERNELS, RadialBasis, check_points
+from faceanim.deform.rbf import (
+    DEFAULT_SMOOTHING,
+    KERNELS,
+    RadialBasis,
+    _describe,
+    check_number,
+    check_points,
+)
 from faceanim.errors import DeformError
 
 METRICS = ("edges", "euclidean")
 MAX_ANCHORS = 20
+MAX_ANCHORS_LIMIT = 1000  # anchors of one element are RBF centres: a dense system of this size
+MAX_EDGE_EXTENT = 100_000  # edges from the control point (more than any mesh's diameter)
+MAX_SMOOTHING = 1e6
 # a control point farther from the surface than this fraction of the mesh's bounding-box
 # diagonal is taken for a mistake (the paper allows points "on or near" the surface)
 MAX_SURFACE_DISTANCE = 0.05
@@ -64,17 +74,51 @@ class GeometryDeformationElement:
 
     @classmethod
     def from_dict(cls, d: dict, index: int = 0) -> GeometryDeformationElement:
+        """An element from a JSON object; every field is checked (types, ranges, unknown keys)."""
         if not isinstance(d, dict) or "control" not in d:
             raise DeformError(f"element {index} needs a 'control' point [x, y, z]")
         known = {"control", "offset", "extent", "metric", "kernel", "smoothing", "stiffness",
                  "max_anchors", "name"}
-        unknown = set(d) - known
+        unknown = [k for k in d if k not in known]
         if unknown:
-            raise DeformError(f"element {index} has unknown key(s): {', '.join(sorted(unknown))}")
-        c = check_points(d["control"], f"element {index} control")[0]
-        return cls(tuple(c), d.get("extent", 4), d.get("metric", "edges"), d.get("kernel", "multiquadric"),
-                   d.get("smoothing", DEFAULT_SMOOTHING), d.get("stiffness"), d.get("max_anchors", MAX_ANCHORS),
-                   d.get("name", f"gde{index}"))
+            shown = ", ".join(_show_key(k) for k in sorted(map(str, unknown))[:5])
+            raise DeformError(f"element {index} has unknown key(s): {shown}{' ...' if len(unknown) > 5 else ''} "
+                              f"(known: {', '.join(sorted(known))})")
+        c = check_points(d["control"], f"element {index} control")
+        if len(c) != 1:
+            raise DeformError(f"element {index} control must be one point [x, y, z], got {len(c)}")
+        metric = d.get("metric", "edges")
+        if not isinstance(metric, str) or metric not in METRICS:
+            raise DeformError(f"element {index}: unknown metric {_show_key(metric)}; choose one of: "
+                              f"{', '.join(METRICS)}")
+        kernel = d.get("kernel", "multiquadric")
+        if not isinstance(kernel, str) or kernel not in KERNELS:
+            raise DeformError(f"element {index}: unknown kernel {_show_key(kernel)}; choose one of: "
+                              f"{', '.join(KERNELS)}")
+        if metric == "edges":
+            extent = check_number(d.get("extent", 4), f"element {index} extent (edges)", 0, MAX_EDGE_EXTENT,
+                                  integer=True)
+        else:
+            extent = check_number(d.get("extent", 4), f"element {index} extent", 0)
+        smoothing = check_number(d.get("smoothing", DEFAULT_SMOOTHING), f"element {index} smoothing", 0.0,
+                                 MAX_SMOOTHING)
+        stiffness = d.get("stiffness")
+        if stiffness is not None:
+            stiffness = check_number(stiffness, f"element {index} stiffness", 0.0, low_inclusive=False)
+        max_anchors = check_number(d.get("max_anchors", MAX_ANCHORS), f"element {index} max_anchors", 1,
+                                   MAX_ANCHORS_LIMIT, integer=True)
+        name = d.get("name", f"gde{index}")
+        if not isinstance(name, str):
+            raise DeformError(f"element {index} name must be text, got {_describe(name)}")
+        return cls(tuple(c[0]), extent, metric, kernel, smoothing, stiffness, max_anchors, name[:200])
+
+
+def _show_key(key) -> str:
+    """A key or name from a file, quoted for an error message (shortened, control characters escaped)."""
+    if not isinstance(key, str):
+        return _describe(key)
+    text = key[:40].encode("unicode_escape").decode("ascii")
+    return f"'{text}'" + ("..." if len(key) > 40 else "")
 
 
 @dataclass
@@ -175,6 +219,7 @@ def bind_element(mesh, element: GeometryDeformationElement) -> BoundElement:
         raise DeformError(f"GDE '{e.name}': extent must be >= 0, got {e.extent}")
     if e.metric == "edges" and extent != int(extent):
         raise DeformError(f"GDE '{e.name}': the edges metric needs a whole number of edges, got {e.extent}")
+    max_anchors = check_number(e.max_anchors, f"GDE '{e.name}': max_anchors", 1, MAX_ANCHORS_LIMIT, integer=True)
     control = check_points(e.control, f"GDE '{e.name}' control")[0]
     dist, root = mesh.kdtree.query(control)
     limit = MAX_SURFACE_DISTANCE * mesh.bounding_box_diagonal
@@ -192,11 +237,15 @@ def bind_element(mesh, element: GeometryDeformationElement) -> BoundElement:
         # no anchors: the element reduces to moving its vertices rigidly (vertex manipulation)
         moving = region
         return BoundElement(e, root, region, boundary, boundary, moving, np.ones(moving.size))
-    anchors = sample_anchors(mesh.vertices, boundary, region, control, int(e.max_anchors))
+    anchors = sample_anchors(mesh.vertices, boundary, region, control, max_anchors)
     moving = np.setdiff1d(region, boundary, assume_unique=True)
     centres = np.vstack([control, mesh.vertices[anchors]])
     system = RadialBasis(centres, e.kernel, e.smoothing, e.stiffness)
-    w = system.weights(mesh.vertices[moving], column=0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        w = system.weights(mesh.vertices[moving], column=0)
+    if not np.all(np.isfinite(w)):
+        raise DeformError(f"GDE '{e.name}': the RBF solve gave non-finite weights; use smoothing > 0 or "
+                          "another extent")
     return BoundElement(e, root, region, boundary, anchors, moving, w)
 
 

@@ -30,6 +30,8 @@ Coordinates are measured in units of the handles' bounding-box diagonal before t
 
 from __future__ import annotations
 
+import math
+import numbers
 import warnings
 
 import numpy as np
@@ -45,14 +47,84 @@ MIN_DEGREE = {"multiquadric": -1, "gaussian": -1, "thin_plate_spline": 1}
 DEFAULT_SMOOTHING = 0.01  # the paper's lambda, "determined experimentally"
 
 _EVAL_CHUNK = 65536  # points per block when evaluating the basis on many points
+MAX_WEIGHTS = 10**8  # entries of a dense weight matrix (points x handles, 800 MB in float64)
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (numbers.Real, np.number)) and not isinstance(x, (bool, np.bool_))
+
+
+def _describe(value) -> str:
+    """What a wrong value is, for an error message (a type, not the value: it may be huge)."""
+    if isinstance(value, str):
+        return "text"
+    if value is None:
+        return "null"
+    if isinstance(value, (bool, np.bool_)):
+        return "true/false"
+    if isinstance(value, dict):
+        return "an object"
+    if isinstance(value, (list, tuple)):
+        return "a list"
+    if _is_number(value):
+        return "a number"
+    return type(value).__name__
+
+
+def check_number(value, name: str, low: float = -math.inf, high: float = math.inf, *, integer: bool = False,
+                 low_inclusive: bool = True) -> float:
+    """``value`` as a float (int with ``integer``) if it is a real finite number in range; else a
+    DeformError naming ``name``. Text, true/false, null and lists are refused, not converted."""
+    if not _is_number(value):
+        raise DeformError(f"{name} must be a number, got {_describe(value)}")
+    try:
+        v = float(value)
+    except (OverflowError, ValueError):
+        raise DeformError(f"{name} is too large") from None
+    if not math.isfinite(v):
+        raise DeformError(f"{name} must be a finite number, got {v}")
+    if (v < low if low_inclusive else v <= low) or v > high:
+        lo = f"at least {low:g}" if low_inclusive else f"more than {low:g}"
+        hi = f" and at most {high:g}" if math.isfinite(high) else ""
+        raise DeformError(f"{name} must be {lo}{hi}, got {v:g}")
+    if integer:
+        if v != int(v):
+            raise DeformError(f"{name} must be a whole number, got {v:g}")
+        return int(v)
+    return v
+
+
+def _check_leaves(points, name: str) -> None:
+    """Refuse nested lists that hold anything but numbers (text, null, true/false, objects) or
+    that nest deeper than a list of points."""
+    stack = [(points, 0)]
+    while stack:
+        x, depth = stack.pop()
+        if isinstance(x, (list, tuple)):
+            if depth >= 2:
+                raise DeformError(f"{name} must be a list of [x, y, z] points; it is nested too deeply")
+            stack.extend((y, depth + 1) for y in x)
+        elif isinstance(x, np.ndarray):
+            if x.dtype.kind not in "iuf":
+                raise DeformError(f"{name} must hold numbers only")
+        elif not _is_number(x):
+            raise DeformError(f"{name} must hold numbers only, got {_describe(x)}")
 
 
 def check_points(points, name: str, min_count: int = 1) -> np.ndarray:
     """Validate an (N, 3) array of finite points, naming ``name`` in the error."""
+    if isinstance(points, np.ndarray):
+        if points.dtype.kind not in "iuf":
+            if points.dtype.kind == "O":
+                _check_leaves(points.tolist(), name)
+            else:
+                raise DeformError(f"{name} must be an array of 3-D points (numbers)")
+    else:
+        _check_leaves(points, name)
     try:
         p = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise DeformError(f"{name} must be an array of 3-D points") from None
+    except (TypeError, ValueError, OverflowError):
+        raise DeformError(f"{name} must be an array of 3-D points: lists of 3 numbers each") from None
     if p.ndim == 1 and p.size == 3:
         p = p[None]
     if p.ndim != 2 or p.shape[1] != 3:
@@ -111,18 +183,24 @@ class RadialBasis:
 
     def __init__(self, centres, kernel: str = "multiquadric", smoothing: float = DEFAULT_SMOOTHING,
                  stiffness: float | None = None, degree: int | None = None):
+        if not isinstance(kernel, str):
+            raise DeformError(f"kernel must be a name ({', '.join(KERNELS)}), got {_describe(kernel)}")
         if kernel not in KERNELS:
-            raise DeformError(f"unknown kernel '{kernel}'; choose one of: {', '.join(KERNELS)}")
+            shown = kernel if len(kernel) <= 40 and kernel.isprintable() else kernel[:40].encode("unicode_escape").decode()
+            raise DeformError(f"unknown kernel '{shown}'; choose one of: {', '.join(KERNELS)}")
         c = check_points(centres, "handles")
         if degree is None:
             degree = DEFAULT_DEGREE[kernel]
-        if degree not in (-1, 0, 1):
-            raise DeformError(f"polynomial degree must be -1, 0 or 1, got {degree}")
+        if not _is_number(degree) or degree not in (-1, 0, 1):
+            raise DeformError(f"polynomial degree must be -1, 0 or 1, got "
+                              f"{degree if _is_number(degree) else _describe(degree)}")
+        degree = int(degree)
         if degree < MIN_DEGREE[kernel]:
             raise DeformError(f"the {kernel} kernel needs a polynomial of degree >= {MIN_DEGREE[kernel]}")
-        smoothing = float(smoothing)
-        if not np.isfinite(smoothing) or smoothing < 0:
-            raise DeformError(f"smoothing must be a finite number >= 0, got {smoothing}")
+        try:
+            smoothing = check_number(smoothing, "smoothing", 0.0)
+        except DeformError as exc:
+            raise DeformError(f"{exc} (smoothing must be a finite number >= 0)") from None
         n = c.shape[0]
         m = _polynomial(c[:1], degree).shape[1]
         if n < max(m, 1):
@@ -136,7 +214,11 @@ class RadialBasis:
 
         # coincident handles make the system singular: name them
         if n > 1:
-            span = float(np.linalg.norm(c.max(axis=0) - c.min(axis=0)))
+            with np.errstate(over="ignore", invalid="ignore"):
+                span = float(np.linalg.norm(c.max(axis=0) - c.min(axis=0)))
+            if not math.isfinite(span):
+                raise DeformError("the handles are too far apart to solve (coordinates near the float limit); "
+                                  "check their units")
             tree = cKDTree(c)
             pairs = sorted(tree.query_pairs(max(span, 1.0) * 1e-9))
             if pairs:
@@ -159,9 +241,10 @@ class RadialBasis:
             else:
                 s = np.ones(1)
         else:
-            stiffness = float(stiffness)
-            if not np.isfinite(stiffness) or stiffness <= 0:
-                raise DeformError(f"stiffness must be a positive number, got {stiffness}")
+            try:
+                stiffness = check_number(stiffness, "stiffness", 0.0, low_inclusive=False)
+            except DeformError as exc:
+                raise DeformError(f"{exc} (stiffness must be a positive number)") from None
             s = np.full(n, stiffness / self.scale)
         self.stiffness = s * self.scale  # in mesh units, for reporting
         self._s = s
@@ -248,7 +331,14 @@ def bind_rbf(rest, handles, kernel: str = "multiquadric", smoothing: float = DEF
     rest = check_points(rest, "mesh vertices")
     system = RadialBasis(handles, kernel, smoothing, stiffness, degree)
     pts = rest if rows is None else rest[np.asarray(rows)]
-    w = system.weights(pts)
+    if pts.shape[0] * system.n_centres > MAX_WEIGHTS:
+        raise DeformError(f"{system.n_centres} handles on {pts.shape[0]} vertices need a weight matrix of more "
+                          f"than {MAX_WEIGHTS:.0e} entries; use fewer handles or GDEs (local regions)")
+    with np.errstate(over="ignore", invalid="ignore"):
+        w = system.weights(pts)
+    if not np.all(np.isfinite(w)):
+        raise DeformError("the RBF solve gave non-finite weights for these handles (coordinates too large or "
+                          "the system is near singular); check the handles' units or use smoothing > 0")
     return LinearDeformer(rest.astype(dtype), w.astype(dtype), rows)
 
 

@@ -102,6 +102,9 @@ class Landmarks:
             raise LandmarkError("give the faces of the mesh to move landmarks onto it")
         if (self.triangles < 0).any():
             raise LandmarkError("these landmarks were given by position only and cannot follow a deformation")
+        if faces is not None and len(self.triangles) and self.triangles.max() >= len(faces):
+            raise LandmarkError(f"landmark triangle {int(self.triangles.max())} is not a triangle of this mesh "
+                                f"({len(faces)} triangles); were the landmarks made for another mesh?")
         corners = verts[faces[self.triangles]]
         return np.einsum("nk,nkd->nd", self.barycentric, corners)
 
@@ -125,26 +128,16 @@ class Landmarks:
 
     @classmethod
     def from_dict(cls, d: object, source: str = "landmarks") -> Landmarks:
-        if not isinstance(d, dict) or not isinstance(d.get("points"), list) or not d["points"]:
-            raise LandmarkError(f"{source}: expected {{'scheme': ..., 'points': [{{'name', 'position'}}, ...]}}")
-        names, idx, pos, tri, bary = [], [], [], [], []
-        for k, p in enumerate(d["points"]):
-            if not isinstance(p, dict) or "position" not in p:
-                raise LandmarkError(f"{source}: point {k} needs a 'position' [x, y, z]")
-            try:
-                xyz = np.asarray(p["position"], dtype=np.float64)
-            except (TypeError, ValueError):
-                xyz = np.zeros(0)
-            if xyz.shape != (3,) or not np.all(np.isfinite(xyz)):
-                raise LandmarkError(f"{source}: point {k} has an invalid position {p['position']!r}")
-            i = int(p.get("index", -1))
-            names.append(str(p.get("name") or MEDIAPIPE_NAMES.get(i, f"point{k}")))
-            idx.append(i)
-            pos.append(xyz)
-            tri.append(int(p.get("triangle", -1)))
-            bary.append(p.get("barycentric", [0.0, 0.0, 0.0]))
-        return cls(str(d.get("scheme", "custom")), names, np.array(idx), np.array(pos), np.array(tri),
-                   np.asarray(bary, dtype=np.float64), d.get("detected_on"))
+        """Landmarks from a JSON object ``{"scheme": ..., "points": [{"name", "index", "position",
+        "triangle", "barycentric"}, ...]}``; only ``position`` is required.
+
+        Refused with a :class:`LandmarkError` naming the point: positions that are not three finite
+        numbers (text, null, true/false, nested lists, NaN, infinity, beyond 1e12), indices that are
+        not whole numbers or outside the MediaPipe range 0..477 (or outside the named scheme),
+        repeated indices or names, null fields, triangles below -1, barycentrics that are not three
+        finite numbers, more than ``MAX_POINTS`` points.
+        """
+        return _landmarks_from_dict(cls, d, source)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Landmarks:
@@ -166,6 +159,112 @@ class Landmarks:
                 f"{limit:.4g}); are the landmarks for this mesh and in its units?")
         return Landmarks(self.scheme, list(self.names), self.indices.copy(), pos, np.asarray(tri),
                          mesh.barycentric(pos, tri), self.detected_on)
+
+
+MAX_POINTS = 100_000  # landmarks in one file
+MAX_COORDINATE = 1e12
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _kind(x) -> str:
+    if x is None:
+        return "null"
+    if isinstance(x, bool):
+        return "true/false"
+    if isinstance(x, str):
+        return "text"
+    if isinstance(x, dict):
+        return "an object"
+    if isinstance(x, list):
+        return "a list"
+    return type(x).__name__
+
+
+def _vector(value, n: int, where: str, field: str) -> np.ndarray:
+    if not isinstance(value, list) or len(value) != n or not all(_is_number(x) for x in value):
+        got = (f"{len(value)} value(s)" if isinstance(value, list) and len(value) != n else
+               "a list holding " + ", ".join(sorted({_kind(x) for x in value if not _is_number(x)}))
+               if isinstance(value, list) else _kind(value))
+        raise LandmarkError(f"{where} has an invalid {field}: expected {n} numbers, got {got}")
+    try:
+        v = np.array(value, dtype=np.float64)
+    except OverflowError:
+        v = np.array([np.inf])
+    if not np.all(np.isfinite(v)) or np.abs(v).max() > MAX_COORDINATE:
+        raise LandmarkError(f"{where} has an invalid {field}: NaN, infinite or absurdly large")
+    return v
+
+
+def _whole(value, where: str, field: str, low: int, high: int) -> int:
+    if not _is_number(value) or (isinstance(value, float) and not value.is_integer()):
+        raise LandmarkError(f"{where}: '{field}' must be a whole number, got "
+                            f"{value if _is_number(value) else _kind(value)}")
+    if not low <= value <= high:
+        raise LandmarkError(f"{where}: '{field}' {int(value)} is out of range ({low}..{high})")
+    return int(value)
+
+
+def _landmarks_from_dict(cls, d: object, source: str) -> Landmarks:
+    shape = "expected {'scheme': ..., 'points': [{'name', 'index', 'position': [x, y, z]}, ...]}"
+    if not isinstance(d, dict):
+        raise LandmarkError(f"{source}: {shape}, got {_kind(d)}")
+    points = d.get("points")
+    if not isinstance(points, list) or not points:
+        raise LandmarkError(f"{source}: {shape}; 'points' is "
+                            f"{'missing' if 'points' not in d else 'empty' if points == [] else _kind(points)}")
+    if len(points) > MAX_POINTS:
+        raise LandmarkError(f"{source}: {len(points)} points; at most {MAX_POINTS} are supported")
+    scheme = d.get("scheme", "custom")
+    if not isinstance(scheme, str) or not scheme.strip() or len(scheme) > 100:
+        raise LandmarkError(f"{source}: 'scheme' must be a name (text), got {_kind(scheme)}")
+    detected_on = d.get("detected_on")
+    if detected_on is not None and not isinstance(detected_on, str):
+        raise LandmarkError(f"{source}: 'detected_on' must be text, got {_kind(detected_on)}")
+    allowed = {i for _, i in SCHEMES[scheme]} if scheme in SCHEMES else None
+    names, idx, pos, tri, bary = [], [], [], [], []
+    seen_index: dict[int, int] = {}
+    seen_name: dict[str, int] = {}
+    for k, p in enumerate(points):
+        where = f"{source}: point {k}"
+        if not isinstance(p, dict):
+            raise LandmarkError(f"{where} must be an object with a 'position' [x, y, z], got {_kind(p)}")
+        for key, value in p.items():
+            if value is None:
+                raise LandmarkError(f"{where}: '{str(key)[:40]}' is null; give a value or leave the key out")
+        if "position" not in p:
+            raise LandmarkError(f"{where} needs a 'position' [x, y, z]")
+        xyz = _vector(p["position"], 3, where, "position")
+        i = _whole(p["index"], where, "index", 0, len(MEDIAPIPE_NAMES) - 1) if "index" in p else -1
+        if i >= 0:
+            if allowed is not None and i not in allowed:
+                raise LandmarkError(f"{where}: index {i} is not a landmark of scheme '{scheme}'")
+            if i in seen_index:
+                raise LandmarkError(f"{where}: index {i} repeats point {seen_index[i]}; each landmark once")
+            seen_index[i] = k
+        name = p.get("name")
+        if name is not None and (not isinstance(name, str) or not name.strip() or len(name) > 200):
+            raise LandmarkError(f"{where}: 'name' must be text, got {_kind(name)}")
+        name = name or MEDIAPIPE_NAMES.get(i, f"point{k}")
+        if name in seen_name:
+            raise LandmarkError(f"{where}: name '{name[:40]}' repeats point {seen_name[name]}; each landmark once")
+        seen_name[name] = k
+        t = _whole(p["triangle"], where, "triangle", -1, 2**62) if "triangle" in p else -1
+        if "barycentric" in p:
+            b = _vector(p["barycentric"], 3, where, "barycentric")
+        elif t >= 0:
+            raise LandmarkError(f"{where} has a 'triangle' but no 'barycentric' [a, b, c]")
+        else:
+            b = np.zeros(3)
+        names.append(name)
+        idx.append(i)
+        pos.append(xyz)
+        tri.append(t)
+        bary.append(b)
+    return cls(scheme, names, np.array(idx, dtype=np.int64), np.array(pos), np.array(tri, dtype=np.int64),
+               np.array(bary, dtype=np.float64), detected_on)
 
 
 @contextlib.contextmanager
@@ -247,18 +346,63 @@ def detection_view(mesh, forward: str = "+z", up: str = "+y", size: int = 768):
                              frame_vertices=_face_frame(mesh, rot), margin=1.0)
 
 
-def pick_surface_points(mesh, xy, forward: str = "+z", up: str = "+y") -> tuple[np.ndarray, np.ndarray]:
+def pick_surface_points(mesh, xy, forward: str = "+z", up: str = "+y", *,
+                        what: str = "pick") -> tuple[np.ndarray, np.ndarray]:
     """2D picks to 3D surface points by ray casting (seed paper section 2.2).
 
     ``xy`` (N, 2) are normalised coordinates in the front view that ``faceanim landmarks
-    --image`` saves. Returns (positions (N, 3), triangle ids (N,)).
+    --image`` saves (x right, y down, in [0, 1]). Returns (positions (N, 3), triangle ids (N,)).
+    A pick outside [0, 1] or one whose ray misses the mesh (the background around the face) is
+    refused with a :class:`LandmarkError` naming it (``what`` says what it is, e.g. "GDE pick").
+    A ray through a gap of the surface (an eye hole, parted lips) snaps to the nearest vertex.
     """
-    xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
+    try:
+        xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
+    except (TypeError, ValueError, OverflowError):
+        raise LandmarkError(f"{what}s must be [x, y] pairs of numbers in 0..1") from None
     if xy.ndim != 2 or xy.shape[1] != 2 or not np.all(np.isfinite(xy)):
-        raise LandmarkError(f"picks must be finite (N, 2) image coordinates, got shape {xy.shape}")
+        raise LandmarkError(f"{what}s must be finite (N, 2) image coordinates, got shape {xy.shape}")
+    out = ((xy < 0) | (xy > 1)).any(axis=1)
+    if out.any():
+        raise LandmarkError(f"{what} {_fmt_pick(xy[np.flatnonzero(out)[0]])} is outside the image: picks are "
+                            "normalised coordinates in 0..1 (x right, y down)")
     with detection_view(mesh, forward, up) as r:
         origins, dirs = r.pixel_rays(xy)
+    missed = _misses_the_mesh(mesh, origins, dirs, r.rotation)
+    if missed.any():
+        raise LandmarkError(f"{what} {_fmt_pick(xy[np.flatnonzero(missed)[0]])} does not hit the face (its ray "
+                            f"misses '{mesh.name}' looking along {forward}); pick a point on the face in the "
+                            "front view")
     return _cast_onto_surface(mesh, origins, dirs, r.rotation)
+
+
+def _fmt_pick(p) -> str:
+    return f"[{p[0]:.4g}, {p[1]:.4g}]"
+
+
+def _misses_the_mesh(mesh, origins, dirs, rot) -> np.ndarray:
+    """Rays that hit no triangle (front or back) and pass outside the mesh's outline in the view
+    (outside the convex hull of the projected vertices, or farther from every projected vertex
+    than a tenth of the projected size): the background, not a gap in the surface. A ray within
+    two edge lengths of a vertex is never a miss (picks on the outline graze it)."""
+    hit, _, _ = mesh.cast_rays(origins, dirs)
+    if hit.all():
+        return ~hit
+    from scipy.spatial import Delaunay, QhullError, cKDTree
+
+    view = (mesh.vertices @ rot.T)[:, :2]
+    o = (origins[~hit] @ rot.T)[:, :2]
+    span = float(np.linalg.norm(view.max(0) - view.min(0))) or 1.0
+    dist, _ = cKDTree(view).query(o)
+    outside = dist > 0.1 * span
+    try:
+        outside |= Delaunay(view).find_simplex(o) < 0
+    except (QhullError, ValueError):
+        pass  # a flat or degenerate outline: the distance test alone
+    outside &= dist > 2.0 * mesh.mean_edge_length
+    miss = np.zeros(len(origins), dtype=bool)
+    miss[~hit] = outside
+    return miss
 
 
 def _cast_onto_surface(mesh, origins, dirs, rot) -> tuple[np.ndarray, np.ndarray]:
