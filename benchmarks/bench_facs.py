@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from faceanim.face.default import default_face, default_landmarks
-from faceanim.face.face import landmarks_478
+from faceanim.face.face import Face, landmarks_478
 from faceanim.rig.transfer import ExpressionTransfer, default_model
 
 
@@ -35,7 +35,7 @@ def main():
     rows = {}
     for method in ("surface", "tps"):
         def bind(method=method):
-            return ExpressionTransfer(face, lm, method=method)
+            return ExpressionTransfer(Face(face, lm), method=method)
 
         t_bind, xf = best(bind, 2)
         t_rig, rig = best(lambda xf=xf: xf.rig(model, sides=False), 1)

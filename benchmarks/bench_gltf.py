@@ -31,7 +31,7 @@ import pygltflib
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from faceanim.face.default import default_face, default_landmarks
-from faceanim.face.face import landmarks_478
+from faceanim.face.face import Face, landmarks_478
 from faceanim.io.gltf import write_gltf
 from faceanim.rig.transfer import ExpressionTransfer, default_model
 
@@ -106,7 +106,7 @@ def best_write(path: Path, mesh, shapes, quantize: bool) -> float:
 def main() -> None:
     mesh = default_face()
     diag = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
-    rig = ExpressionTransfer(mesh, landmarks_478(mesh, default_landmarks(mesh))).rig(default_model(), sides=True)
+    rig = ExpressionTransfer(Face(mesh, landmarks_478(mesh, default_landmarks(mesh)))).rig(default_model(), sides=True)
     au = rig.blendshape_dict()
     print(f"default face: {mesh.n_vertices} vertices, {mesh.n_faces} triangles, bounding-box diagonal "
           f"{diag * 100:.1f} cm; AU rig: {len(au)} targets")

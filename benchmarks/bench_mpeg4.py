@@ -17,7 +17,7 @@ import numpy as np
 from faceanim.drivers.mpeg4 import FapStream
 from faceanim.drivers.speech import align, say_timed
 from faceanim.face.default import default_face, default_landmarks
-from faceanim.face.face import landmarks_478
+from faceanim.face.face import Face, landmarks_478
 from faceanim.player import speech_stream
 from faceanim.rig.mpeg4 import FapRig
 
@@ -26,7 +26,7 @@ def main():
     face = default_face()
     lm = landmarks_478(face, default_landmarks(face))
     t = time.perf_counter()
-    rig = FapRig.build(face, lm)
+    rig = FapRig.build(Face(face, lm))
     t_build = time.perf_counter() - t
     text = "Hello, how are you? I am a talking face built from the papers."
     wav = Path("/tmp") / "faceanim-bench-speech.wav"

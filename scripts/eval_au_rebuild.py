@@ -21,7 +21,7 @@ import numpy as np
 
 from faceanim.deform.rbf import RadialBasis
 from faceanim.deform.surface import bind_surface
-from faceanim.face.face import landmarks_478
+from faceanim.face.face import Face, landmarks_478
 from faceanim.face.frame import face_frame, rigid_align
 from faceanim.face.landmarks import BASIC22, detect_landmarks
 from faceanim.face.regions import face_region
@@ -104,13 +104,13 @@ def main(argv=None):
     aus = lib.parse_action_units("all")
     samples = [learn_expression(neutral, m, lm, library=lib) for m in meshes[1:]]
     for method, label in (("tps", "thesis: AU points, TPS per face half"), ("surface", "faceanim: AU points, surface")):
-        xf = ExpressionTransfer(neutral, lm, lib, method=method)
+        xf = ExpressionTransfer(Face(neutral, lm), lib, method=method)
         rows[label] = (len(xf.points.names), [err(xf.points_delta(s, aus), k) for k, s in enumerate(samples)])
     # the curve: fewer points (the thesis' eight AUs) and more (the 60 plus uniform fill)
     eight = lib.parse_action_units("1,2,4,12,14,15,17,20")
-    xf = ExpressionTransfer(neutral, lm, lib, method="surface")
+    xf = ExpressionTransfer(Face(neutral, lm), lib, method="surface")
     keep = sorted({p for a in eight for p in lib.action_unit(a).points} & set(xf.points.names))
-    sub = ExpressionTransfer(neutral, lm, lib, method="surface", names=keep)
+    sub = ExpressionTransfer(Face(neutral, lm), lib, method="surface", names=keep)
     rows["faceanim: the thesis' 8 AUs' points, surface"] = (len(keep), [
         err(sub.points_delta(s, eight), k) for k, s in enumerate(samples)])
     cp = xf.points

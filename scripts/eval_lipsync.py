@@ -21,7 +21,7 @@ import numpy as np
 
 from faceanim.drivers.speech import align, phone_viseme, viseme_actions
 from faceanim.face.default import default_face, default_landmarks
-from faceanim.face.face import landmarks_478
+from faceanim.face.face import Face, landmarks_478
 from faceanim.player import speech_stream
 from faceanim.rig.mpeg4 import FapRig
 
@@ -36,7 +36,7 @@ def main(argv=None):
         raise SystemExit(f"{args.data}: no clip-*.wav files")
     face = default_face()
     lm = landmarks_478(face, default_landmarks(face))
-    rig = FapRig.build(face, lm)
+    rig = FapRig.build(Face(face, lm))
     fp = rig.points
     _, upper = face.kdtree.query(fp["2.2"])
     _, lower = face.kdtree.query(fp["2.3"])

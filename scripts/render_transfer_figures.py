@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.face.default import default_face, default_landmarks
-from faceanim.face.face import landmarks_478
+from faceanim.face.face import Face, landmarks_478
 from faceanim.face.landmarks import detect_landmarks
 from faceanim.io.meshio import load_mesh
 from faceanim.render import OffscreenRenderer, save_png
@@ -41,7 +41,7 @@ def main(argv=None):
     if ict.exists():
         head = load_mesh(ict)
         targets.append(("ICT head", head, landmarks_478(head, detect_landmarks(head))))
-    rigs = [ExpressionTransfer(m, lm, lib) for _, m, lm in targets]
+    rigs = [ExpressionTransfer(Face(m, lm), lib) for _, m, lm in targets]
     views = []
     for (_, m, lm) in targets:
         from faceanim.face.landmarks import FACE_OVAL

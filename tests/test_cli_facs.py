@@ -7,7 +7,7 @@ import pytest
 from conftest import FACEWAREHOUSE, need
 
 from faceanim.cli import main
-from faceanim.face.face import landmarks_478
+from faceanim.face.face import Face, landmarks_478
 from faceanim.face.landmarks import BASIC22, Landmarks
 from faceanim.io.meshio import load_mesh, save_mesh
 from faceanim.rig.transfer import ExpressionTransfer, default_model
@@ -33,7 +33,7 @@ def test_au_matches_the_library(tmp_path, face_files, base_face):
     assert _run(["au", mesh, "--au", "12", "--magnitude", "0.5", "--landmarks", lm, "-o", out]) == 0
     got = load_mesh(out)
     lms = landmarks_478(base_face, Landmarks.load(lm).attached_to(base_face))
-    xf = ExpressionTransfer(base_face, lms)
+    xf = ExpressionTransfer(Face(base_face, lms))
     want = base_face.vertices + xf.action_unit_delta(default_model(), 12, 0.5)
     np.testing.assert_allclose(got.vertices, want, atol=1e-7)
     assert got.n_vertices == base_face.n_vertices and got.texture is not None

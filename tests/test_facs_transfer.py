@@ -6,7 +6,7 @@ from scipy.interpolate import RBFInterpolator
 from faceanim.deform.rbf import landmark_tps
 from faceanim.deform.surface import bind_surface, cotangent_laplacian
 from faceanim.errors import FaceAnimError, LandmarkError
-from faceanim.face.face import landmarks_478
+from faceanim.face.face import Face, landmarks_478
 from faceanim.face.mesh import Mesh
 from faceanim.face.regions import face_region
 from faceanim.rig.facs import ActionUnitError, default_library, region_weights
@@ -83,7 +83,7 @@ def test_library_parsing_and_errors():
 @pytest.fixture(scope="module")
 def transfer(face, face_landmarks):
     lm = landmarks_478(face, face_landmarks)
-    return ExpressionTransfer(face, lm)
+    return ExpressionTransfer(Face(face, lm))
 
 
 def test_brow_action_never_moves_the_mouth_and_the_reverse(transfer, face, face_landmarks):
@@ -120,7 +120,7 @@ def test_rebuild_real_expression_beats_landmark_tps():
     n = load_mesh(need(FACEWAREHOUSE / "pose_0.obj"))
     e = load_mesh(FACEWAREHOUSE / "pose_2.obj")
     lm = landmarks_478(n, detect_landmarks(n))
-    xf = ExpressionTransfer(n, lm)
+    xf = ExpressionTransfer(Face(n, lm))
     stable = skull_vertices(n, lm, xf.frame)
     r, t = rigid_align(e.vertices[stable], n.vertices[stable])
     real = e.vertices @ r.T + t - n.vertices

@@ -5,7 +5,7 @@ import pytest
 
 from faceanim.drivers.mpeg4 import FapStream
 from faceanim.errors import InputFileError, LandmarkError
-from faceanim.face.face import landmarks_478
+from faceanim.face.face import Face, landmarks_478
 from faceanim.face.faps import FapError, direction_vector, fap, faps
 from faceanim.face.fdp import feature_points
 from faceanim.face.frame import face_frame
@@ -108,7 +108,7 @@ def test_feature_points_and_fapu(face, face_landmarks):
 def fap_rig(face, face_landmarks):
     from faceanim.rig.mpeg4 import FapRig
 
-    return FapRig.build(face, landmarks_478(face, face_landmarks))
+    return FapRig.build(Face(face, landmarks_478(face, face_landmarks)))
 
 
 def test_linear_faps_move_their_feature_point_by_the_fapu(fap_rig, face):
@@ -167,7 +167,7 @@ def test_eyeballs_turn_on_a_head_that_has_them(fap_rig):
 
     assert 23 in fap_rig.unsupported  # the default face is a mask without eyeballs
     head = load_mesh(need(ICT / "generic_neutral_mesh.obj"))
-    rig = FapRig.build(head, landmarks_478(head, detect_landmarks(head)))
+    rig = FapRig.build(Face(head, landmarks_478(head, detect_landmarks(head))))
     assert rig.eyes["L"] is not None and rig.eyes["R"] is not None and 23 not in rig.unsupported
     s = FapStream.empty(1)
     s.set("yaw_l_eyeball", 20000)  # 0.2 rad to the face's left

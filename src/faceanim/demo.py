@@ -19,6 +19,7 @@ import numpy as np
 from faceanim.deform.gde import GeometryDeformationElement as GDE
 from faceanim.drivers.keyframes import expression_tour
 from faceanim.face.default import default_face, default_landmarks
+from faceanim.face.face import Face
 from faceanim.io.gltf import write_gltf
 from faceanim.render import OffscreenRenderer, save_png, write_video
 from faceanim.rig.expressions import Expression, expression_rig
@@ -58,7 +59,7 @@ def emotion_blendshapes(mesh, lm) -> dict[str, np.ndarray]:
     from faceanim.face.face import landmarks_478
     from faceanim.rig.transfer import ExpressionTransfer, default_model
 
-    rig = ExpressionTransfer(mesh, landmarks_478(mesh, lm)).rig(default_model(), sides=False)
+    rig = ExpressionTransfer(Face(mesh, landmarks_478(mesh, lm))).rig(default_model(), sides=False)
     return {f"facs_{name}": d for name, d in rig.blendshape_dict().items() if not name.startswith("AU")}
 
 

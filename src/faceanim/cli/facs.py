@@ -33,7 +33,7 @@ def _cmd_au(args) -> None:
     mix = lib.emotion(args.emotion) if args.emotion else {au: 1.0 for au in lib.parse_action_units(args.au)}
     check_outputs(args.output)
     face = load_face(args)
-    xf = ExpressionTransfer(face.mesh, face.landmarks, lib, method=args.method)
+    xf = ExpressionTransfer(face, lib, method=args.method)
     model = default_model()
     pose = xf.mixture_delta(model, {au: w * m for au, w in mix.items()}, side=args.side)
     shapes = {"pose": pose}
@@ -56,7 +56,7 @@ def _cmd_transfer(args) -> None:
     s1 = Face.load(args.source_expressive, args.source_expressive_landmarks)
     sample = learn_expression(s0.mesh, s1.mesh, s0.landmarks, s1.landmarks, lib)
     face = load_face(args)
-    xf = ExpressionTransfer(face.mesh, face.landmarks, lib, method=args.method)
+    xf = ExpressionTransfer(face, lib, method=args.method)
     full = xf.points_delta(sample, aus, 1.0, side=args.side)
     report(write_pose(args, face, {"expression": full}, "expression", m))
 

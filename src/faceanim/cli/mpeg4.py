@@ -69,7 +69,7 @@ def _cmd_say(args) -> None:
         raise CommandError("--audio needs --transcript (the words spoken in it)")
     check_outputs(args.output)
     face = load_face(args)
-    rig = FapRig.build(face.mesh, face.landmarks)
+    rig = FapRig.build(face)
     with tempfile.TemporaryDirectory() as tmp:
         if args.audio:
             from faceanim.io.files import read_text
@@ -97,7 +97,7 @@ def _cmd_fap_play(args) -> None:
     check_outputs(args.output)
     stream = read_fap(args.fap)
     face = load_face(args)
-    rig = FapRig.build(face.mesh, face.landmarks)
+    rig = FapRig.build(face)
     for warning in rig.check(stream):
         print(f"faceanim fap play: warning: {warning}", file=sys.stderr)
     written = _write(args, rig, stream, face, Path(args.audio) if args.audio else None)
@@ -149,7 +149,7 @@ def _cmd_direct(args) -> None:
     check_outputs(args.output)
     script = load_script(args.script)
     face = Face.load(face_path(args) or script.get("face", "default"), args.landmarks)
-    rig = FapRig.build(face.mesh, face.landmarks)
+    rig = FapRig.build(face)
     with tempfile.TemporaryDirectory() as tmp:
         scene = build_scene(script, rig, Path(tmp))
         stream = scene_stream(scene, Path(args.output).stem)

@@ -16,15 +16,19 @@ them reports these FAPs as unsupported.
 
 from __future__ import annotations
 
-
 import numpy as np
 import scipy.sparse as sp
 
+from faceanim.face.face import Face
 from faceanim.face.faps import ANGLE_UNIT, N_FAPS, FapError, direction_vector, fap, faps
-from faceanim.face.fdp import FeaturePoints, feature_points
-from faceanim.face.mesh import Mesh
+from faceanim.face.fdp import FeaturePoints
 from faceanim.face.landmarks import CHEEK_EXTREMES, MOUTH_CORNERS
-from faceanim.face.regions import graph_distance, past_corners, skin, slit_sides, smoothstep
+from faceanim.face.mesh import Mesh
+from faceanim.face.regions import (
+    graph_distance,
+    past_corners,
+    smoothstep,
+)
 from faceanim.rig.rig import Rig, RigidPart
 
 # influence radius of a FAP's feature point by FAP group: (factor, FAPU); within PLATEAU of the
@@ -129,12 +133,13 @@ class FapRig(Rig):
     eyes: dict = None  # 'L'/'R' -> (vertex rows, centre of rotation), None where no eyeball
 
     @classmethod
-    def build(cls, mesh: Mesh, lm478: np.ndarray) -> FapRig:
-        """Build the FaceDefTable of ``mesh`` from its 478 landmarks: the FAP blendshapes and rigid parts."""
-        fp = feature_points(mesh, lm478)
+    def build(cls, face: Face) -> FapRig:
+        """Build the FaceDefTable of a face: the FAP blendshapes and rigid parts."""
+        mesh, lm478 = face.mesh, face.landmarks
+        fp = face.feature_points
         frame = fp.frame
-        on_skin = skin(mesh, lm478)
-        sides = slit_sides(mesh, lm478)
+        on_skin = face.skin
+        sides = face.slits
         eyes = _find_eyeballs(mesh, fp, on_skin)
         rows, cols, vals = [], [], []
         supported = np.zeros(N_FAPS, dtype=bool)

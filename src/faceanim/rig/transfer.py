@@ -29,6 +29,7 @@ import numpy as np
 from faceanim.deform.rbf import RadialBasis, landmark_tps
 from faceanim.deform.surface import bind_surface
 from faceanim.errors import DeformError, LandmarkError, MeshError
+from faceanim.face.face import Face
 from faceanim.face.frame import FaceFrame, face_frame, rigid_align
 from faceanim.face.landmarks import STABLE_LANDMARKS
 from faceanim.face.mesh import Mesh
@@ -173,17 +174,17 @@ class ExpressionTransfer:
     or whole learned expression then costs one matrix product.
     """
 
-    def __init__(self, target: Mesh, lm478: np.ndarray, library: ActionUnitLibrary | None = None,
-                 method: str = "surface", names=None):
+    def __init__(self, face: Face, library: ActionUnitLibrary | None = None, method: str = "surface", names=None):
         if method not in METHODS:
             raise DeformError(f"unknown transfer method '{method}'; choose one of: {', '.join(METHODS)}")
-        self.mesh = target
+        self.face = face
+        self.mesh = target = face.mesh
         self.library = library or default_library()
-        self.lm = np.asarray(lm478, dtype=np.float64)
-        self.frame = face_frame(self.lm)
+        self.lm = face.landmarks
+        self.frame = face.frame
         self.method = method
-        self.points: ControlPoints = place_control_points(target, self.lm, self.library, names)
-        self.free = free_region(target, self.lm, self.frame)
+        self.points: ControlPoints = place_control_points(target, self.lm, self.library, names, sides=face.slits)
+        self.free = face.free_region
         self.region = region_weights(target.vertices, self.lm, self.library, self.frame)
         self.scale = _normaliser(self.points.names, self.library, self.frame)
         self._regions = {r: np.array([self.library.control_points[n].region == r for n in self.points.names])
@@ -197,7 +198,7 @@ class ExpressionTransfer:
             # fixed anchors at the top of the forehead (the paper's anchors): the skin at the
             # hairline stays put, also on a face mask that ends there
             ids = list(self.library.anchors)
-            on_skin = skin(self.mesh, self.lm)
+            on_skin = self.face.skin
             pos, dist, tri = self.mesh.closest_points(self.lm[ids], on_skin[self.mesh.faces].all(axis=1))
             near = np.linalg.norm(pos[:, None] - self.points.positions[None], axis=2).min(1)
             ok = (dist < MAX_SNAP * self.frame.iod) & (near > MIN_SPACING * self.frame.iod)
@@ -213,11 +214,10 @@ class ExpressionTransfer:
         # evaluated on the face; beyond the face outline the warp fades out over the margin of
         # the free region instead of extrapolating (the thesis' faces were cropped there)
         from faceanim.deform.base import LinearDeformer
-        from faceanim.face.regions import face_region, smoothstep
         from faceanim.face.regions import graph_distance as _graph_distance
+        from faceanim.face.regions import smoothstep
 
-        face = face_region(self.mesh, self.lm, self.frame)
-        dist = _graph_distance(self.mesh, np.flatnonzero(face), limit=FREE_MARGIN * self.frame.iod)
+        dist = _graph_distance(self.mesh, np.flatnonzero(self.face.face_region), limit=FREE_MARGIN * self.frame.iod)
         fade = np.where(np.isfinite(dist), smoothstep(1.0 - dist / (FREE_MARGIN * self.frame.iod)), 0.0)
         rows = np.flatnonzero(self.free & (fade > 0))
         self._operators = {}
