@@ -69,7 +69,7 @@ def check_output_path(path: str | os.PathLike, what: str = "output") -> Path:
         st = os.stat(parent)
     except FileNotFoundError:
         raise OutputError(f"cannot write {what} '{p}': folder '{parent}' does not exist; create it first "
-                          f"(mkdir -p '{parent}') or choose another path") from None
+                          f"(mkdir -p '{parent}')") from None
     except NotADirectoryError:
         raise OutputError(f"cannot write {what} '{p}': '{parent}' is not a folder; choose another path") from None
     except OSError as exc:
