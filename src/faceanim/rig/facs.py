@@ -19,8 +19,8 @@ import numpy as np
 
 from faceanim.errors import FaceAnimError, LandmarkError
 from faceanim.face.frame import FaceFrame, face_frame
-from faceanim.face.mesh import Mesh
 from faceanim.face.landmarks import SLITS
+from faceanim.face.mesh import Mesh
 from faceanim.face.regions import skin, slit_sides, smoothstep
 
 REGIONS = ("upper", "lower")
