@@ -16,13 +16,13 @@ import numpy as np
 from faceanim.face.default import default_face, default_landmarks
 from faceanim.face.face import landmarks_478
 from faceanim.face.landmarks import FACE_OVAL
+from faceanim.player import render_wires
 from faceanim.render import save_png
 from faceanim.rig.wires import (
     align_template,
     blend,
     default_wires,
     extract_template,
-    render_wires,
 )
 
 

@@ -20,6 +20,7 @@ from faceanim.deform.wires import (
 from faceanim.errors import DeformError, FaceAnimError
 from faceanim.face.face import landmarks_478
 from faceanim.io.meshio import save_mesh
+from faceanim.player import render_wires
 from faceanim.rig.wires import (
     WireTemplate,
     blend,
@@ -28,7 +29,6 @@ from faceanim.rig.wires import (
     default_wires,
     edit_template,
     extract_template,
-    render_wires,
 )
 
 

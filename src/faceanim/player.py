@@ -12,13 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
+from faceanim.deform.wires import Curve
 from faceanim.drivers.mpeg4 import Action, FapStream, blend_actions
 from faceanim.errors import FaceAnimError
 from faceanim.face.landmarks import FACE_OVAL
+from faceanim.face.mesh import Mesh
 from faceanim.io.gltf import write_gltf
 from faceanim.render import OffscreenRenderer, write_video
 from faceanim.rig.mpeg4 import FapRig
 from faceanim.rig.rig import Rig
+from faceanim.rig.wires import WireSet
 
 CHUNK = 64  # frames evaluated at once while rendering (bounded memory for long clips)
 
@@ -82,3 +85,29 @@ def gltf_stream(rig: FapRig, stream: FapStream, path, **options) -> Path:
     if not used:
         raise FaceAnimError("the stream sets no FAP this face can show")
     return write_rig_gltf(rig, curves, path, stream.fps, stream.name or "faps", names=used, **options)
+
+
+GROUP_COLOURS = {"brows": (255, 170, 0), "eyes": (0, 200, 255), "mouth": (255, 60, 60), "cheeks": (120, 255, 120),
+                 "nose": (255, 255, 0), "other": (255, 255, 255)}
+
+
+def render_wires(mesh: Mesh, wireset: WireSet, vertices=None, controls=None, size: int = 768,
+                 frame_vertices=None) -> np.ndarray:
+    """A frontal picture of the face with its wire curves drawn over it (colour by group) and
+    their control points as dots; ``controls`` draws wire curves instead of the references;
+    ``frame_vertices`` sets the framing (e.g. the face of a full head)."""
+    import cv2
+
+
+
+    with OffscreenRenderer(mesh, size=(size, size), parallel=True, frame_vertices=frame_vertices,
+                           margin=1.15) as r:
+        img = np.ascontiguousarray(r.render(vertices))
+        for j, (w, g) in enumerate(zip(wireset.wires, wireset.groups)):
+            curve = w.reference if controls is None else Curve(controls[j])
+            pts = (r.project(curve(np.linspace(0, 1, 120))) * size).astype(np.int32)
+            colour = GROUP_COLOURS.get(g, GROUP_COLOURS["other"])
+            cv2.polylines(img, [pts.reshape(-1, 1, 2)], False, colour, 2, cv2.LINE_AA)
+            for x, y in (r.project(curve.control) * size).astype(int):
+                cv2.circle(img, (int(x), int(y)), 4, colour, -1, cv2.LINE_AA)
+    return img

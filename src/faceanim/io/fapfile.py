@@ -21,9 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from faceanim.drivers.mpeg4 import FapStream
 from faceanim.errors import FaceAnimError, InputFileError
-from faceanim.face.faps import N_FAPS
+from faceanim.face.faps import N_FAPS, FapStream
 from faceanim.io.files import atomic_output
 from faceanim.limits import MAX_FPS, MAX_FRAMES
 
