@@ -399,14 +399,20 @@ _EXPECTED = {"float_type": "a number", "float_parsing": "a number", "int_type": 
 def _type_name(value) -> str:
     if value is None:
         return "nothing"
-    return {bool: "true/false", int: "a number", float: "a number", str: "a string", list: "a list",
+    if type(value) is float:
+        return f"{value:g}"
+    if type(value) is int:
+        return str(value) if abs(value) < 10**15 else "a very large number"
+    return {bool: "true/false", str: "a string", list: "a list",
             dict: "a mapping"}.get(type(value), type(value).__name__)
 
 
 def _pydantic_message(err: dict, model: type[BaseModel] | None, what: str) -> str:
     kind, loc, ctx = err["type"], err["loc"], err.get("ctx") or {}
-    key = f"'{_shown(loc[-1])}'" if loc and isinstance(loc[-1], str) else "the value"
     value = err.get("input")
+    if "[key]" in loc:
+        return f"a name here must be a string (quote it), got {_type_name(value)}"
+    key = f"'{_shown(loc[-1])}'" if loc and isinstance(loc[-1], str) else "the value"
     if kind == "extra_forbidden":
         keys = [f.alias or name for name, f in model.model_fields.items()] if model else []
         keys = [k for k in keys if k in KINDS] + [k for k in keys if k not in KINDS]  # the kind first
@@ -475,7 +481,7 @@ def _expressions() -> list[str]:
 def _event(data, loc: tuple, fail: _Fail) -> Event:
     if not isinstance(data, dict):
         fail(loc, f"{ONE_OF}, as a mapping (e.g. {{expression: joy, at: 0}}); got {_type_name(data)}")
-    kinds = [k for k in KINDS if k in data]
+    kinds = [k for k in data if k in KINDS]  # in the order written
     if not kinds:
         for key in data:
             close = difflib.get_close_matches(str(key), KINDS, n=1)
@@ -516,7 +522,7 @@ class _Plan:
     events: int = 0
     actions: int = 0  # speech not counted
     say_chars: int = 0
-    end: float = 0.0  # seconds after the list's offset (speech counted from its start)
+    end: float = 0.0  # seconds after the list's offset (speech from its start, blinks until 'to')
 
 
 def _blink_count(ev: BlinkEvent) -> int:
@@ -551,7 +557,7 @@ def _plan(events, groups: dict, fail: _Fail, loc: tuple, stack: tuple, memo: dic
             total.end = max(total.end, ev.at + sub.end)
         elif isinstance(ev, BlinkEvent):
             total.actions += _blink_count(ev)
-            total.end = max(total.end, (ev.to if ev.to is not None else ev.start + 10.0) + BLINK_DURATION)
+            total.end = max(total.end, ev.to if ev.to is not None else ev.start + 10.0)  # the last starts before
         elif isinstance(ev, SayEvent):
             total.say_chars += len(ev.say)
             total.end = max(total.end, ev.at)
@@ -584,7 +590,7 @@ def validate_script(data, source: str = "script", lines: _Lines | None = None) -
     groups = {name: tuple(_event(ev, ("groups", name, k), fail) for k, ev in enumerate(evs))
               for name, evs in (top.groups or {}).items()}
     plan = _plan(events, groups, fail, ("events",), (), {})
-    n_frames = math.ceil((plan.end + TAIL) * top.fps) + 1
+    n_frames = math.ceil((plan.end + BLINK_DURATION + TAIL) * top.fps) + 1
     if n_frames > MAX_FRAMES:
         fail(("fps",), f"the scene needs {n_frames} frames at {top.fps:g} fps; faceanim makes at most "
                        f"{MAX_FRAMES}: lower 'fps' or shorten the scene")
@@ -689,7 +695,7 @@ def build_scene(script: Script | dict, rig, workdir: Path) -> Scene:
         raise ScriptError(f"{script.source}: the script places no actions on the timeline")
     duration = max(a.end for a in actions) + TAIL
     scene = Scene(actions, speech, duration, script.fps, all_phones)
-    if duration > MAX_DURATION + TAIL or scene.n_frames > MAX_FRAMES:
+    if duration > MAX_DURATION + BLINK_DURATION + TAIL or scene.n_frames > MAX_FRAMES:
         raise ScriptError(f"{script.source}: with its speech the scene lasts {duration:.1f} s ({scene.n_frames} "
                           f"frames); faceanim makes at most {MAX_DURATION:g} s and {MAX_FRAMES} frames")
     return scene
