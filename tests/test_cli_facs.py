@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 from conftest import FACEWAREHOUSE, need
+from gltf_reader import accessor
 
 from faceanim.cli import main
 from faceanim.face.face import Face, landmarks_478
@@ -74,13 +75,25 @@ def test_bad_landmarks(tmp_path, face_files, base_face, capsys):
                                           for i in (1, 4, 33)]}))
     assert _run(["au", mesh, "--au", "1", "--landmarks", few, "-o", out]) == 2
     assert "missing" in capsys.readouterr().err
-    # out of order: the face's landmarks upside down (eyes where the mouth is)
-    flipped = tmp_path / "flipped.json"
+    # on the surface but out of order: eye corners where the mouth corners are, chin at the forehead;
+    # and mirrored: left and right eye corners, mouth corners and cheeks swapped
+    for swaps in (((33, 61), (263, 291), (152, 10)), ((33, 263), (61, 291), (234, 454))):
+        idx = np.arange(478)
+        for a, b in swaps:
+            idx[a], idx[b] = b, a
+        bad = tmp_path / "bad_order.json"
+        bad.write_text(json.dumps({"points": [{"index": i, "position": base_face.vertices[idx[i]].tolist()}
+                                              for i in range(478)]}))
+        assert _run(["au", mesh, "--au", "1", "--landmarks", bad, "-o", out]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and "mirrored (left and right swapped) or out of order" in err
+    # landmarks of another mesh (off this surface)
+    far = tmp_path / "far.json"
     v = base_face.vertices.copy()
     v[:, 1] = -v[:, 1]
-    flipped.write_text(json.dumps({"points": [{"index": i, "position": v[i].tolist()} for i in range(478)]}))
-    assert _run(["au", mesh, "--au", "1", "--landmarks", flipped, "-o", out]) == 2
-    assert "error" in capsys.readouterr().err
+    far.write_text(json.dumps({"points": [{"index": i, "position": v[i].tolist()} for i in range(478)]}))
+    assert _run(["au", mesh, "--au", "1", "--landmarks", far, "-o", out]) == 2
+    assert "from the surface" in capsys.readouterr().err
     # the basic 22 on three surface points only (repeated, all in one plane): degenerate TPS
     flat = tmp_path / "flat.json"
     pts = [{"index": i, "position": base_face.vertices[(4, 33, 263)[k % 3]].tolist()}
@@ -114,13 +127,34 @@ def test_preprocess_writes_grid_and_landmarks(tmp_path, face_files):
     assert len(pts) == 478 and np.allclose(pts[4]["position"], 0, atol=0.05)  # nose tip at the origin
 
 
-def test_transfer_from_a_real_scan_pair(tmp_path, face_files):
+def test_transfer_from_a_real_scan_pair(tmp_path, face_files, base_face):
+    """A real smile (FaceWarehouse pose 2) transferred onto the default face: the mouth corners
+    (AU12's points) rise and widen, the forehead stays, and the GLB's morph target is exactly
+    the OBJ's displacement."""
     mesh, lm = face_files
     s0 = need(FACEWAREHOUSE / "pose_0.obj")
-    out = tmp_path / "smile.glb"
-    assert _run(["transfer", "--source-neutral", s0, "--source-expressive", FACEWAREHOUSE / "pose_2.obj",
-                 "--target", mesh, "--landmarks", lm, "--au", "12", "--magnitude", "0.8", "-o", out]) == 0
-    assert out.stat().st_size > 1000
+    args = ["transfer", "--source-neutral", s0, "--source-expressive", FACEWAREHOUSE / "pose_2.obj",
+            "--target", mesh, "--landmarks", lm, "--au", "12", "--magnitude", "0.8"]
+    assert _run(args + ["-o", tmp_path / "smile.obj"]) == 0
+    assert _run(args + ["-o", tmp_path / "smile.glb"]) == 0
+    from faceanim.io.meshio import load_mesh
+
+    posed = load_mesh(tmp_path / "smile.obj").vertices
+    d = posed - base_face.vertices
+    iod = np.linalg.norm(base_face.vertices[263] - base_face.vertices[33])
+    right, left = 61, 291  # the mouth corners rise and move apart in a smile
+    assert d[right, 1] > 0.02 * iod and d[left, 1] > 0.02 * iod
+    width = np.linalg.norm(posed[left] - posed[right]) - np.linalg.norm(base_face.vertices[left] - base_face.vertices[right])
+    assert width > 0.02 * iod
+    assert np.abs(d[10]).max() < 1e-3 * iod  # the top of the forehead does not move
+    import pygltflib
+
+    gltf = pygltflib.GLTF2().load(str(tmp_path / "smile.glb"))
+    prim = gltf.meshes[0].primitives[0]
+    assert gltf.meshes[0].extras["targetNames"] == ["expression"]
+    target = accessor(gltf, prim.targets[0]["POSITION"])
+    v = base_face.n_vertices  # seam copies of the UV layout follow the mesh's own vertices
+    np.testing.assert_allclose(target[:v], d, atol=1e-6)  # the morph target at weight 1 is the pose
 
 
 def test_preprocess_bad_reference(tmp_path, face_files, capsys):
