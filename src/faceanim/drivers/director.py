@@ -49,6 +49,7 @@ import json
 import math
 import re
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -278,6 +279,7 @@ class _Fail:
 # ----------------------------------------------------------------------------------- reading
 
 
+@lru_cache(maxsize=1)
 def _yaml_loader():
     import yaml
 
