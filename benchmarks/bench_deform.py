@@ -25,9 +25,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from faceanim.deform import (
     GeometryDeformationElement,
-    bind_element,
     bind_gdes,
     bind_rbf,
+    element_influence,
 )
 from faceanim.face.default import default_face
 from faceanim.face.mesh import Mesh
@@ -124,9 +124,9 @@ def main():
         sizes = []
         for i in lm_ids:
             e = GeometryDeformationElement(tuple(face.vertices[i]), extent, metric)
-            bind_element(face, e)  # warm caches (adjacency, k-d tree) as a rig would
-            for_each.append(best(lambda: bind_element(face, e), repeat=5))
-            sizes.append(bind_element(face, e).region.size)
+            element_influence(face, e)  # warm caches (adjacency, k-d tree) as a rig would
+            for_each.append(best(lambda: element_influence(face, e), repeat=5))
+            sizes.append(element_influence(face, e).region.size)
         rows.append([f"{metric} {extent}", f"{face.n_vertices}", f"{int(np.mean(sizes))}",
                      ms(float(np.median(for_each))), ms(float(np.max(for_each)))])
     table(rows, ["metric/extent", "vertices", "region (mean)", "bind (median)", "bind (max)"])

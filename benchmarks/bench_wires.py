@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from faceanim.deform.wires import bind_wires, extract_wires
+from faceanim.deform.wires import extract_wires, wire_influence
 from faceanim.face.default import default_face, default_landmarks
 from faceanim.face.face import landmarks_478
 from faceanim.rig.wires import default_wires
@@ -34,8 +34,8 @@ def main():
     lm = landmarks_478(face, default_landmarks(face))
     wireset = default_wires(lm)
     rng = np.random.default_rng(0)
-    t_bind = best(lambda: wireset.bind(face, lm), 3)
-    bound = wireset.bind(face, lm)
+    t_bind = best(lambda: wireset.influence(face, lm), 3)
+    bound = wireset.influence(face, lm)
     op = bound.deformer(np.float32)
     frames = np.stack([bound.offsets([w.reference.control + rng.normal(scale=1e-3, size=w.reference.control.shape)
                                       for w in wireset.wires], rng.uniform(0.9, 1.1, len(wireset.wires)))
@@ -43,7 +43,7 @@ def main():
     op.apply(frames[:10])
     t_frame = best(lambda: op.apply(frames[0]), 20)
     t_1000 = best(lambda: op.apply(frames), 3)
-    naive = best(lambda: bind_wires(face.vertices, wireset.wires, wireset.k).apply(), 2)
+    naive = best(lambda: wire_influence(face.vertices, wireset.wires, wireset.k).apply(), 2)
     print(f"default face: {face.n_vertices} vertices, {len(wireset.wires)} wires, {op.n_handles} handles, "
           f"{op.rows.size if op.rows is not None else face.n_vertices} vertices in range\n")
     print("| step | time |")
@@ -63,7 +63,7 @@ def main():
         data = Path(sys.argv[1])
         base = load_mesh(data / "pose_0.obj")
         blm = landmarks_478(base, detect_landmarks(base))
-        b = default_wires(blm).bind(base, blm)
+        b = default_wires(blm).influence(base, blm)
         template = align_template(base, load_mesh(data / "pose_2.obj"), blm)
         t_ex = best(lambda: extract_wires(b, template.vertices), 5)
         print(f"| extract one template, {base.n_vertices}-vertex FaceWarehouse head | {t_ex * 1000:.0f} ms |")

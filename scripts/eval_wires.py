@@ -39,7 +39,7 @@ def main(argv=None):
     rng = np.random.default_rng(0)
 
     # exact recovery: templates made by known wires and scales
-    bound = wireset.bind(base, lm)
+    bound = wireset.influence(base, lm)
     worst_c = worst_s = 0.0
     for _ in range(5):
         controls = [w.reference.control + rng.normal(scale=0.02 * np.ptp(w.reference.control), size=w.reference.control.shape)
@@ -50,7 +50,7 @@ def main(argv=None):
         worst_s = max(worst_s, np.abs(got_s - scales).max())
     print(f"exact recovery (5 templates from known wires): control points {worst_c:.1e}, scales {worst_s:.1e}")
 
-    rows = {"paper (no side masks)": wireset.bind(base), "faceanim (lip and lid wires keep to their side)": bound}
+    rows = {"paper (no side masks)": wireset.influence(base), "faceanim (lip and lid wires keep to their side)": bound}
     results = {k: [] for k in rows}
     times, ratio = [], None
     for f in files[1:]:

@@ -45,7 +45,7 @@ def main(argv=None):
     base = load_mesh(fw / "pose_0.obj")
     blm = landmarks_478(base, detect_landmarks(base))
     ws = default_wires(blm)
-    bound = ws.bind(base, blm)
+    bound = ws.influence(base, blm)
     size = args.size
     frame = blm[list(FACE_OVAL)]
     row = [render_wires(base, ws, size=size, frame_vertices=frame)]

@@ -5,13 +5,13 @@ import pytest
 from scipy.sparse import csgraph
 
 from faceanim.deform import GeometryDeformationElement as GDE
-from faceanim.deform import bind_element, bind_gdes
+from faceanim.deform import bind_gdes, element_influence
 from faceanim.errors import DeformError
 
 
 def test_edge_metric_region_is_the_bfs_ball(face, face_landmarks):
     root = 61  # mouth corner (vertex i of the default face is MediaPipe landmark i)
-    b = bind_element(face, GDE(tuple(face.vertices[root]), 6, "edges"))
+    b = element_influence(face, GDE(tuple(face.vertices[root]), 6, "edges"))
     # oracle: hop distances from scipy's breadth-first search
     hops = csgraph.shortest_path(face.adjacency.astype(float), unweighted=True, indices=root)
     np.testing.assert_array_equal(b.region, np.flatnonzero(hops <= 6))
@@ -21,7 +21,7 @@ def test_edge_metric_region_is_the_bfs_ball(face, face_landmarks):
 
 def test_euclidean_metric_region_is_connected_ball(face, face_landmarks):
     c = face_landmarks["brow_inner_left"]
-    b = bind_element(face, GDE(tuple(c), 0.015, "euclidean"))
+    b = element_influence(face, GDE(tuple(c), 0.015, "euclidean"))
     d = np.linalg.norm(face.vertices[b.region] - c, axis=1)
     assert d.max() <= 0.015
     # every vertex of the ball that is connected to the root inside the ball is found
@@ -37,7 +37,7 @@ def test_locality_outside_regions_is_bit_identical_and_anchors_fixed(face, face_
                 GDE(tuple(face_landmarks["brow_inner_right"]), 8, "edges")]
     deformer = bind_gdes(face, elements)
     out = deformer.apply(np.array([[0.004, 0.006, -0.002], [0.0, 0.005, 0.0]]))
-    bound = [bind_element(face, e) for e in elements]
+    bound = [element_influence(face, e) for e in elements]
     region = np.unique(np.concatenate([b.region for b in bound]))
     outside = np.setdiff1d(np.arange(face.n_vertices), region)
     assert np.array_equal(out[outside], face.vertices[outside])  # bit-identical
@@ -64,14 +64,14 @@ def test_control_point_off_the_vertices(face):
     """A control point inside a triangle (paper step 1) binds to its nearest vertex."""
     tri = face.faces[1000]
     p = face.vertices[tri].mean(0)
-    b = bind_element(face, GDE(tuple(p), 5, "edges"))
+    b = element_influence(face, GDE(tuple(p), 5, "edges"))
     assert b.root in tri
     assert b.moving.size > 10
 
 
 def test_anchors_sampled_evenly_around_the_control_point(face, face_landmarks):
     c = face_landmarks["cheek_left"]
-    b = bind_element(face, GDE(tuple(c), 0.02, "euclidean"))
+    b = element_influence(face, GDE(tuple(c), 0.02, "euclidean"))
     assert b.boundary.size > 20 and b.anchors.size == 20
     rel = face.vertices[b.anchors] - c
     normal = face.vertex_normals()[b.root]
@@ -102,13 +102,13 @@ def test_edge_metric_keeps_the_upper_lip_still(face, face_landmarks):
 
 def test_bad_elements(face):
     with pytest.raises(DeformError, match="from the surface"):
-        bind_element(face, GDE((0.0, 0.0, 1.0), 4))
+        element_influence(face, GDE((0.0, 0.0, 1.0), 4))
     with pytest.raises(DeformError, match="unknown metric"):
-        bind_element(face, GDE(tuple(face.vertices[0]), 4, "geodesic"))
+        element_influence(face, GDE(tuple(face.vertices[0]), 4, "geodesic"))
     with pytest.raises(DeformError, match="whole number"):
-        bind_element(face, GDE(tuple(face.vertices[0]), 2.5, "edges"))
+        element_influence(face, GDE(tuple(face.vertices[0]), 2.5, "edges"))
     with pytest.raises(DeformError, match="NaN"):
-        bind_element(face, GDE((np.nan, 0.0, 0.0), 4))
+        element_influence(face, GDE((np.nan, 0.0, 0.0), 4))
 
 
 def test_sparse_batch_equals_frame_by_frame(face, face_landmarks, rng):

@@ -12,10 +12,10 @@ from faceanim.cli import main
 from faceanim.deform.wires import (
     Curve,
     Wire,
-    bind_wires,
     clamped_knots,
     extract_wires,
     falloff,
+    wire_influence,
 )
 from faceanim.errors import DeformError, FaceAnimError
 from faceanim.face.face import landmarks_478
@@ -55,14 +55,14 @@ def test_single_wire_moves_points_on_the_curve_with_it(rng):
     ref = Curve(np.array([[0, 0, 0], [1, 0.2, 0], [2, -0.1, 0], [3, 0.1, 0], [4, 0, 0]], dtype=float))  # planar
     on_curve = ref(np.linspace(0.05, 0.95, 20))
     far = on_curve + [0, 0, 5.0]
-    b = bind_wires(np.vstack([on_curve, far]), [Wire(ref, 1.0)], k=2)
+    b = wire_influence(np.vstack([on_curve, far]), [Wire(ref, 1.0)], k=2)
     shift = np.array([0.0, 0.3, 0.0])
     moved = b.apply([ref.control + shift], [1.0])
     np.testing.assert_allclose(moved[:20] - on_curve, np.tile(shift, (20, 1)), atol=1e-9)  # f(0) = 1
     np.testing.assert_array_equal(moved[20:], far)  # out of range: f = 0
     # s = 1 is no scaling; s scales the offset from the curve where f > 0
     near = on_curve + [0, 0, 0.5]
-    b2 = bind_wires(near, [Wire(ref, 1.0)], k=2)
+    b2 = wire_influence(near, [Wire(ref, 1.0)], k=2)
     scaled = b2.apply(None, [2.0])
     np.testing.assert_allclose(scaled - near, (near - on_curve) * falloff(np.array([0.5]))[0], atol=1e-6)
 
@@ -71,7 +71,7 @@ def test_operator_equals_direct_formula_and_extraction_is_exact(rng):
     verts = rng.normal(size=(3000, 3))
     wires = [Wire(Curve(rng.normal(size=(5, 3))), 1.2, "a"),
              Wire(Curve(rng.normal(size=(8, 3))), np.linspace(0.8, 1.4, 8), "b")]
-    b = bind_wires(verts, wires, k=2)
+    b = wire_influence(verts, wires, k=2)
     controls = [w.reference.control + 0.1 * rng.normal(size=w.reference.control.shape) for w in wires]
     scales = np.array([1.25, 0.8])
     # oracle: eqs. 2-3 evaluated directly, vertex by vertex through the bound quantities
@@ -110,7 +110,7 @@ def test_default_wires_sit_on_the_face(base_face, face_wires):
 
 def test_template_round_trip_and_exact_recovery_on_a_face(tmp_path, base_face, face_wires, rng):
     lm, ws = face_wires
-    bound = ws.bind(base_face, lm)
+    bound = ws.influence(base_face, lm)
     controls = [w.reference.control + rng.normal(scale=0.002, size=w.reference.control.shape) for w in ws.wires]
     scales = rng.uniform(0.8, 1.2, len(ws.wires))
     template = base_face.with_vertices(bound.apply(controls, scales))
@@ -129,7 +129,7 @@ def test_template_round_trip_and_exact_recovery_on_a_face(tmp_path, base_face, f
 
 def test_blending_functions_and_blendshapes_are_exact(base_face, face_wires, rng):
     lm, ws = face_wires
-    bound = ws.bind(base_face, lm)
+    bound = ws.influence(base_face, lm)
     make = lambda: WireTemplate(ws, [w.reference.control + rng.normal(scale=0.002, size=w.reference.control.shape)
                                      for w in ws.wires], rng.uniform(0.9, 1.1, len(ws.wires)), base_face.n_vertices)
     a, b = make(), make()
@@ -157,7 +157,7 @@ def test_bad_wires_and_templates(base_face, face_wires, rng):
     with pytest.raises(DeformError, match="positive"):
         Wire(Curve(rng.normal(size=(5, 3))), 0.0, "flat")
     far = Wire(Curve(rng.normal(size=(5, 3)) + 100.0), 0.01, "lost")
-    b = bind_wires(base_face.vertices, ws.wires + [far], 2)
+    b = wire_influence(base_face.vertices, ws.wires + [far], 2)
     with pytest.raises(DeformError, match="lost"):
         extract_wires(b, base_face.vertices)
     with pytest.raises(FaceAnimError, match="topology|vertices"):
@@ -170,7 +170,7 @@ def test_cli_extract_apply_blend(tmp_path, base_face, face_wires, rng, capsys):
     save_mesh(base_face, base)
     lmf = tmp_path / "lm.json"
     lmf.write_text(json.dumps({"points": [{"index": i, "position": base_face.vertices[i].tolist()} for i in range(478)]}))
-    bound = ws.bind(base_face, lm)
+    bound = ws.influence(base_face, lm)
     files = []
     for n in range(2):
         controls = [w.reference.control + rng.normal(scale=0.002, size=w.reference.control.shape) for w in ws.wires]

@@ -34,7 +34,7 @@ def _cmd_extract(args) -> None:
     template = load_mesh(args.template)
     if not args.no_align:
         template = align_template(base, template, lm)
-    bound = wireset.bind(base, lm)
+    bound = wireset.influence(base, lm)
     t = extract_template(base, template, wireset, bound)
     region = face_region(base, lm)
     moved = np.linalg.norm((template.vertices - base.vertices)[region])

@@ -3,20 +3,20 @@
 
 from faceanim.deform.base import LinearDeformer
 from faceanim.deform.gde import (
-    BoundElement,
+    ElementInfluence,
     GeometryDeformationElement,
-    bind_element,
     bind_gdes,
+    element_influence,
 )
 from faceanim.deform.rbf import KERNELS, RadialBasis, bind_rbf
 
 __all__ = [
     "KERNELS",
-    "BoundElement",
+    "ElementInfluence",
     "GeometryDeformationElement",
     "LinearDeformer",
     "RadialBasis",
-    "bind_element",
+    "element_influence",
     "bind_gdes",
     "bind_rbf",
 ]

@@ -122,8 +122,9 @@ def _show_key(key) -> str:
 
 
 @dataclass
-class BoundElement:
-    """A GDE bound to a mesh: its region, anchors and the weight of the control offset."""
+class ElementInfluence:
+    """Where one GDE acts on a mesh: its influence region, anchors and the weight of the control
+    offset on each moving vertex (:meth:`deformer` turns it into a bound operator)."""
 
     element: GeometryDeformationElement
     root: int                 # nearest vertex to the control point (BFS root)
@@ -204,8 +205,8 @@ def sample_anchors(vertices: np.ndarray, boundary: np.ndarray, region: np.ndarra
     return order[pick]
 
 
-def bind_element(mesh, element: GeometryDeformationElement) -> BoundElement:
-    """Bind one GDE to ``mesh`` (a :class:`faceanim.mesh.Mesh`)."""
+def element_influence(mesh, element: GeometryDeformationElement) -> ElementInfluence:
+    """One GDE's influence on ``mesh``: the region found by BFS, the anchors and the RBF solve."""
     e = element
     if e.metric not in METRICS:
         raise DeformError(f"unknown metric '{e.metric}'; choose one of: {', '.join(METRICS)}")
@@ -236,7 +237,7 @@ def bind_element(mesh, element: GeometryDeformationElement) -> BoundElement:
     if region.size == 1 or boundary.size == 0:
         # no anchors: the element reduces to moving its vertices rigidly (vertex manipulation)
         moving = region
-        return BoundElement(e, root, region, boundary, boundary, moving, np.ones(moving.size))
+        return ElementInfluence(e, root, region, boundary, boundary, moving, np.ones(moving.size))
     anchors = sample_anchors(mesh.vertices, boundary, region, control, max_anchors)
     moving = np.setdiff1d(region, boundary, assume_unique=True)
     centres = np.vstack([control, mesh.vertices[anchors]])
@@ -246,7 +247,7 @@ def bind_element(mesh, element: GeometryDeformationElement) -> BoundElement:
     if not np.all(np.isfinite(w)):
         raise DeformError(f"GDE '{e.name}': the RBF solve gave non-finite weights; use smoothing > 0 or "
                           "another extent")
-    return BoundElement(e, root, region, boundary, anchors, moving, w)
+    return ElementInfluence(e, root, region, boundary, anchors, moving, w)
 
 
 def bind_gdes(mesh, elements, dtype=np.float64) -> LinearDeformer:
@@ -258,4 +259,4 @@ def bind_gdes(mesh, elements, dtype=np.float64) -> LinearDeformer:
     if not elements:
         raise DeformError("give at least one geometry deformation element")
     rest = np.asarray(mesh.vertices, dtype=dtype)
-    return LinearDeformer.stack([bind_element(mesh, e).deformer(rest) for e in elements])
+    return LinearDeformer.stack([element_influence(mesh, e).deformer(rest) for e in elements])

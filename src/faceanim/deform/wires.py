@@ -130,8 +130,9 @@ class Wire:
 
 
 @dataclass
-class BoundWires:
-    """Wires bound to a rest mesh: the fixed parts of eqs. 3-9 for every vertex.
+class WireInfluence:
+    """Where wires act on a rest mesh: the fixed parts of eqs. 3-9 for every vertex
+    (:meth:`deformer` is the bound operator).
 
     ``weights`` (V, m) are ``w_ij = f_ij^(k+1) / sum_j f_ij^k`` (0 where no wire reaches),
     ``radial`` (m, V, 3) the vectors ``p_i - p_iRj`` and ``basis`` (m, V, t_j) the ``B_l(u_ij)``.
@@ -196,7 +197,7 @@ class BoundWires:
 WEIGHT_CUTOFF = 1e-4  # blending weights below this are dropped: a share of the motion under 0.01%
 
 
-def bind_wires(rest, wires: list[Wire], k: float = 1.0, masks=None) -> BoundWires:
+def wire_influence(rest, wires: list[Wire], k: float = 1.0, masks=None) -> WireInfluence:
     """Closest points on every reference curve, falloffs and the eq. 3 blending weights.
 
     ``masks`` (one (V,) array of factors in [0, 1] or None per wire) scales a wire's falloff per
@@ -235,10 +236,10 @@ def bind_wires(rest, wires: list[Wire], k: float = 1.0, masks=None) -> BoundWire
     total = fk.sum(1, keepdims=True)
     weights = np.divide(fk * f, total, out=np.zeros_like(f), where=total > 0)
     weights[weights < WEIGHT_CUTOFF] = 0.0
-    return BoundWires(list(wires), float(k), rest, weights, radial, basis)
+    return WireInfluence(list(wires), float(k), rest, weights, radial, basis)
 
 
-def extract_wires(bound: BoundWires, template, rcond: float = 1e-10) -> tuple[list[np.ndarray], np.ndarray]:
+def extract_wires(bound: WireInfluence, template, rcond: float = 1e-10) -> tuple[list[np.ndarray], np.ndarray]:
     """Wire curves and radial scales that best turn the bound rest mesh into ``template``
     (Pyun, Shin & Shin, eqs. 9-13).
 

@@ -20,12 +20,12 @@ from importlib import resources
 import numpy as np
 
 from faceanim.deform.wires import (
-    BoundWires,
     Curve,
     Wire,
-    bind_wires,
+    WireInfluence,
     clamped_knots,
     extract_wires,
+    wire_influence,
 )
 from faceanim.errors import DeformError, InputFileError
 from faceanim.face.frame import face_frame
@@ -79,7 +79,7 @@ class WireSet:
     def names(self) -> list[str]:
         return [w.name for w in self.wires]
 
-    def bind(self, mesh, lm478=None) -> BoundWires:
+    def influence(self, mesh, lm478=None) -> WireInfluence:
         """Bind to a base face. Wires with a side keep to it when the face's landmarks are given
         (the paper's wires are not limited: without landmarks they reach across the slit)."""
         v = mesh.vertices if isinstance(mesh, Mesh) else np.asarray(mesh)
@@ -103,7 +103,7 @@ class WireSet:
                 beyond = past_corners(x, corner_x, 1.0, 0.4)
                 own = lower[side[0]] == (side[1] == "lower")
                 masks.append(np.where(own, 1.0, beyond))
-        return bind_wires(v, self.wires, self.k, masks)
+        return wire_influence(v, self.wires, self.k, masks)
 
 
 def default_wires(lm478: np.ndarray, spec: dict | None = None) -> WireSet:
@@ -175,24 +175,24 @@ class WireTemplate:
     def load(cls, path) -> WireTemplate:
         return cls.from_dict(read_json(path, "wire file"), str(path))
 
-    def rebuild(self, base: Mesh | np.ndarray, bound: BoundWires | None = None, lm478=None) -> np.ndarray:
+    def rebuild(self, base: Mesh | np.ndarray, bound: WireInfluence | None = None, lm478=None) -> np.ndarray:
         """The template's vertices on ``base``: the wires applied to the base face."""
         v = base.vertices if isinstance(base, Mesh) else np.asarray(base)
         if len(v) != self.n_vertices:
             raise DeformError(f"this template was extracted on a base face with {self.n_vertices} vertices; "
                               f"this mesh has {len(v)}")
-        bound = bound or self.wireset.bind(base, lm478)
+        bound = bound or self.wireset.influence(base, lm478)
         return bound.apply(self.controls, self.scales)
 
 
-def extract_template(base: Mesh, template: Mesh, wireset: WireSet, bound: BoundWires | None = None,
+def extract_template(base: Mesh, template: Mesh, wireset: WireSet, bound: WireInfluence | None = None,
                      lm478=None) -> WireTemplate:
     """Fit the wires of ``wireset`` to an expression template of the same topology (eqs. 9-13)."""
     if template.n_vertices != base.n_vertices or not np.array_equal(template.faces, base.faces):
         raise DeformError(f"'{template.name}' has another topology than the base '{base.name}' "
                           f"({template.n_vertices} vs {base.n_vertices} vertices); wire extraction needs "
                           "the same vertices in the same order")
-    bound = bound or wireset.bind(base, lm478)
+    bound = bound or wireset.influence(base, lm478)
     controls, scales = extract_wires(bound, template.vertices)
     return WireTemplate(wireset, controls, scales, base.n_vertices, {"template": template.name})
 
@@ -250,7 +250,7 @@ def blending_function(name: str):
 
 
 
-def blend_blendshapes(a: WireTemplate, b: WireTemplate, bound: BoundWires) -> dict[str, np.ndarray]:
+def blend_blendshapes(a: WireTemplate, b: WireTemplate, bound: WireInfluence) -> dict[str, np.ndarray]:
     """The blend from ``a`` to ``b`` as blendshapes: ``from`` (template a) plus one per feature
     group (its wires' share of b - a). Wire deformation is linear in the wires once the reference
     curves are fixed, so ``from + sum_g g_g(t) * group_g`` is exactly the blended template at t."""
@@ -330,7 +330,7 @@ def blend_chain(base: Mesh, lm478: np.ndarray, templates: list[WireTemplate], fu
     if unknown:
         raise DeformError(f"no wire group {', '.join(unknown)}; the groups are {', '.join(groups)}")
     curves_of = {g: blending_function(functions.get(g, "linear")) for g in groups}
-    bound = templates[0].wireset.bind(base, lm478)
+    bound = templates[0].wireset.influence(base, lm478)
     shapes, columns = {}, []
     for i, (a, b) in enumerate(itertools.pairwise(templates)):
         seg = blend_blendshapes(a, b, bound)
