@@ -57,9 +57,28 @@ LIMIT_ROTATION = 314159.0  # pi rad in AU
 # not up into the brow
 LIDS = {"3.1": ("4.3", "3.11", "3.7"), "3.3": ("4.3", "3.11", "3.7"),
         "3.2": ("4.4", "3.8", "3.12"), "3.4": ("4.4", "3.8", "3.12")}
-JAW_FAPS = (3, 14, 15)
-HEAD_FAPS = (48, 49, 50)
-EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)
+# FAP numbers of the rotations and rigid motions (data/faps.json has their names)
+OPEN_JAW, THRUST_JAW, SHIFT_JAW = 3, 14, 15
+JAW_FAPS = (OPEN_JAW, THRUST_JAW, SHIFT_JAW)
+HEAD_PITCH, HEAD_YAW, HEAD_ROLL = 48, 49, 50
+HEAD_FAPS = (HEAD_PITCH, HEAD_YAW, HEAD_ROLL)
+EYEBALL_TURNS = {"L": (23, 25), "R": (24, 26)}  # (yaw, pitch) of each eyeball
+EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)  # with thrust and pupil dilation
+# an eyeball modelled as a part of the mesh: a shell that is not skin, of at least
+# EYEBALL_MIN_VERTICES, round (spread of distances from its centre under EYEBALL_ROUNDNESS of their
+# mean: sclera, cornea, iris; lashes and occlusion shells are not), centred within
+# EYEBALL_NEAR_PUPIL and no larger than EYEBALL_MAX_RADIUS inter-ocular distances
+EYEBALL_MIN_VERTICES = 20
+EYEBALL_ROUNDNESS = 0.25
+EYEBALL_NEAR_PUPIL = 0.35
+EYEBALL_MAX_RADIUS = 0.4
+# the jaw region: between the mouth corners the lower side of the mouth slit; from JAW_BAND_START
+# half mouth-widths past the corners (over JAW_BAND_WIDTH more) a band below the mouth level,
+# JAW_BAND_HEIGHT inter-ocular distances soft; fading out over JAW_EAR_FADE towards the ears
+JAW_BAND_START, JAW_BAND_WIDTH = 0.6, 0.8
+JAW_BAND_HEIGHT = 0.35
+JAW_EAR_FADE = 0.35
+WEIGHT_FLOOR = 1e-6  # FaceDefTable weights below this are dropped (sparse blendshapes)
 
 
 def _find_eyeballs(mesh: Mesh, fp: FeaturePoints, on_skin: np.ndarray) -> dict:
@@ -74,9 +93,9 @@ def _find_eyeballs(mesh: Mesh, fp: FeaturePoints, on_skin: np.ndarray) -> dict:
             part = np.flatnonzero(labels == c)
             centre = mesh.vertices[part].mean(0)
             dist = np.linalg.norm(mesh.vertices[part] - centre, axis=1)
-            # an eyeball shell is round (sclera, cornea, iris): lashes and occlusion shells are not
-            round_ = len(part) >= 20 and dist.std() < 0.25 * dist.mean()
-            if round_ and np.linalg.norm(centre - pupil) < 0.35 * iod and dist.max() < 0.4 * iod:
+            round_ = len(part) >= EYEBALL_MIN_VERTICES and dist.std() < EYEBALL_ROUNDNESS * dist.mean()
+            if round_ and np.linalg.norm(centre - pupil) < EYEBALL_NEAR_PUPIL * iod \
+                    and dist.max() < EYEBALL_MAX_RADIUS * iod:
                 rows.append(part)
                 if len(part) > best_size:
                     best, best_size = centre, len(part)
@@ -156,7 +175,8 @@ class FapRig(Rig):
                 supported[n - 1] = True
                 continue
             if n in EYEBALL_FAPS or f.is_rotation:
-                if n in (23, 24, 25, 26) and eyes.get("L" if n in (23, 25) else "R") is not None:
+                side = next((k for k, turns in EYEBALL_TURNS.items() if n in turns), None)
+                if side is not None and eyes.get(side) is not None:
                     supported[n - 1] = True
                 else:
                     unsupported[n] = "needs eyeballs (or a tongue) modelled as parts of the mesh"
@@ -178,7 +198,7 @@ class FapRig(Rig):
                     w = w * (sides[slit] == lower)
                 if p in LIDS:
                     w = w * _lid_band(mesh, fp, p, LIDS[p])
-                idx = np.flatnonzero(w > 1e-6)
+                idx = np.flatnonzero(w > WEIGHT_FLOOR)
                 for axis in range(3):
                     rows.append(np.full(len(idx), n - 1))
                     cols.append(3 * idx + axis)
@@ -193,11 +213,11 @@ class FapRig(Rig):
         lm = np.asarray(lm478)
         corners = frame.to_local(lm[list(MOUTH_CORNERS)])
         y_mouth = corners[:, 1].mean()
-        past = past_corners(local[:, 0], corners[:, 0], 0.6, 0.8)
-        below = smoothstep((y_mouth - local[:, 1]) / (0.35 * frame.iod) + 0.5)
+        past = past_corners(local[:, 0], corners[:, 0], JAW_BAND_START, JAW_BAND_WIDTH)
+        below = smoothstep((y_mouth - local[:, 1]) / (JAW_BAND_HEIGHT * frame.iod) + 0.5)
         inside = sides["mouth"].astype(float)
         ear_x = abs(frame.to_local(lm[list(CHEEK_EXTREMES)])[:, 0]).mean()
-        fade_side = np.clip((ear_x - np.abs(local[:, 0])) / (0.35 * frame.iod), 0.0, 1.0)
+        fade_side = np.clip((ear_x - np.abs(local[:, 0])) / (JAW_EAR_FADE * frame.iod), 0.0, 1.0)
         jaw = ((1 - past) * inside + past * below) * fade_side * on_skin
         pivot_local = np.array([0.0, 0.0, frame.to_local(lm[list(CHEEK_EXTREMES)])[:, 2].mean()])
         pivot = frame.origin + pivot_local @ frame.rotation
@@ -207,11 +227,11 @@ class FapRig(Rig):
         name = {f.number: f.name for f in table}
         jaw_rows = np.flatnonzero(jaw > 0)
         parts = [RigidPart("jaw", jaw_rows, jaw[jaw_rows], pivot, frame.rotation,
-                           rotations=[(name[3], 0, mns)],
-                           translations=[(name[14], frame.rotation[2] * mns),  # thrust_jaw: forward
-                                         (name[15], -frame.rotation[0] * mw)],  # shift_jaw: to the face's right
+                           rotations=[(name[OPEN_JAW], 0, mns)],
+                           translations=[(name[THRUST_JAW], frame.rotation[2] * mns),  # forward
+                                         (name[SHIFT_JAW], -frame.rotation[0] * mw)],  # to the face's right
                            from_rest=True, hinge=chin)]
-        for side, (yaw_fap, pitch_fap) in (("L", (23, 25)), ("R", (24, 26))):
+        for side, (yaw_fap, pitch_fap) in EYEBALL_TURNS.items():
             if eyes.get(side) is not None:
                 rows, centre = eyes[side]
                 parts.append(RigidPart(f"eyeball_{side}", rows, np.ones(len(rows)), centre, frame.rotation,
@@ -219,8 +239,8 @@ class FapRig(Rig):
         # the head about 7.1 (face frame: x left, y up, z forward): a turn to the face's left (+yaw)
         # about +y, then a nod down (+pitch) about +x, then a roll to its right (+roll) about +z
         parts.append(RigidPart("head", np.arange(mesh.n_vertices), np.ones(mesh.n_vertices), fp["7.1"].copy(),
-                               frame.rotation, rotations=[(name[49], 1, ANGLE_UNIT), (name[48], 0, ANGLE_UNIT),
-                                                          (name[50], 2, ANGLE_UNIT)]))
+                               frame.rotation, rotations=[(name[HEAD_YAW], 1, ANGLE_UNIT), (name[HEAD_PITCH], 0, ANGLE_UNIT),
+                                                          (name[HEAD_ROLL], 2, ANGLE_UNIT)]))
         base = Rig.from_blendshapes(mesh, shapes, controls=[f.name for f in table], rigid_parts=parts,
                                     limits=_limits())
         return cls(base.mesh, base.controls, base.deformer, base.rigid_parts, base.limits, points=fp,
