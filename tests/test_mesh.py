@@ -81,3 +81,112 @@ def test_missing_file_and_point_cloud(tmp_path):
         load_mesh(tmp_path / "missing.obj")
     with pytest.raises(MeshError, match="no triangles"):
         Mesh(np.zeros((3, 3)), np.zeros((0, 3), dtype=int))
+
+
+# ---------------------------------------------------------------------- damaged and hostile OBJ files
+TRI = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
+TRI_UV = TRI + "vt 0 0\nvt 1 0\nvt 0 1\n"
+BAD_OBJ_LINES = {
+    "inf vertex": (TRI + "v 1 1 inf\nf 1 2 4\n", r"line 4: NaN or infinite coordinates at vertex index 3"),
+    "overflow vertex": ("v 1e400 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", r"line 1: NaN or infinite coordinates"),
+    "nan uv": (TRI_UV.replace("vt 1 0", "vt nan 0") + "f 1/1 2/2 3/3\n", r"line 5: NaN or infinite texture"),
+    "inf uv": (TRI_UV.replace("vt 0 1", "vt 0 -inf") + "f 1/1 2/2 3/3\n", r"line 6: NaN or infinite texture"),
+    "absurd vertex": ("v 1e200 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", r"absurd coordinate .* vertex index 0"),
+    "index 0": (TRI + "f 0 1 2\n", r"line 4: vertex index 0 in a face \(OBJ counts from 1\)"),
+    "relative before first": (TRI + "f -1 -2 -4\n", r"line 4: relative vertex index -4 points before the first"),
+    "huge index": (TRI + "f 1 2 99999999999999999999999\n", r"line 4: vertex index 9+ is absurdly large"),
+    "index past the end": (TRI + "# c\nf 1 2 3\nf 1 2 7\n", r"line 6: a face indexes missing vertices \(vertex 7"),
+    "uv index past the end": (TRI_UV + "f 1/1 2/2 3/9\n", r"line 7: a face indexes missing texture coordinates"),
+    "face of one vertex": (TRI + "f 1\n", r"line 4: a face needs at least 3 corners, got 1"),
+    "face of two": (TRI + "f 1 2\n", r"line 4: a face needs at least 3 corners, got 2"),
+    "text index": (TRI + "f 1 2 three\n", r"line 4: malformed face: vertex index is not a whole number"),
+    "float index": (TRI + "f 1 2 3.0\n", r"line 4: malformed face"),
+    "too many slashes": (TRI + "f 1/1/1/1 2 3\n", r"line 4: malformed face corner"),
+    "short vertex": ("v 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", r"line 1: malformed vertex .*needs 3 numbers, got 2"),
+    "truncated": (TRI + "f 1 2 3\nv 0.5 0.", r"line 5: malformed vertex .*needs 3 numbers, got 2"),
+    "no faces": (TRI, "empty"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_OBJ_LINES))
+def test_damaged_obj_names_the_line(tmp_path, case):
+    text, message = BAD_OBJ_LINES[case]
+    (tmp_path / "bad.obj").write_text(text)
+    with pytest.raises(MeshError, match=message) as exc:
+        load_mesh(tmp_path / "bad.obj")
+    assert "\n" not in str(exc.value) and str(tmp_path / "bad.obj") in str(exc.value)
+
+
+def test_binary_data_in_an_obj(tmp_path):
+    (tmp_path / "bin.obj").write_bytes(TRI.encode() + b"f 1 2 3\n\x00\x01\x02garbage")
+    with pytest.raises(MeshError, match=r"line 5: binary data in a text OBJ"):
+        load_mesh(tmp_path / "bin.obj")
+    (tmp_path / "latin1.obj").write_bytes(b"# caf\xe9\n" + TRI.encode() + b"f 1 2 3\n")
+    assert load_mesh(tmp_path / "latin1.obj").n_faces == 1  # stray non-UTF-8 bytes in a comment are harmless
+
+
+def test_relative_indices_count_from_the_current_line(tmp_path):
+    # OBJ's negative indices are relative to the vertices read so far, not to the whole file
+    (tmp_path / "rel.obj").write_text(TRI + "f -3 -2 -1\nv 5 5 5\nf -4 -3 -1\nvt 0\n")
+    m = load_mesh(tmp_path / "rel.obj")
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2], [0, 1, 3]])
+    assert m.uv is None  # the faces give no texture indices
+
+
+def _textured_obj(tmp_path, image_bytes: bytes | None = None, size=(8, 8)):
+    from PIL import Image
+
+    (tmp_path / "t.obj").write_text("mtllib t.mtl\nusemtl skin\n" + TRI_UV + "f 1/1 2/2 3/3\n")
+    (tmp_path / "t.mtl").write_text("newmtl skin\nmap_Kd -s 1 1 1 skin.png\n")
+    if image_bytes is None:
+        Image.new("RGB", size, (200, 150, 120)).save(tmp_path / "skin.png")
+    else:
+        (tmp_path / "skin.png").write_bytes(image_bytes)
+    return tmp_path / "t.obj"
+
+
+def test_texture_with_options_is_read(tmp_path):
+    m = load_mesh(_textured_obj(tmp_path))
+    assert m.texture.shape == (8, 8, 3) and (m.texture[0, 0] == [200, 150, 120]).all()
+
+
+@pytest.mark.parametrize("data", [b"", b"\x89PNG\r\n\x1a\n" + b"\x00" * 40, b"GIF89a\xff\xff\xff\xff", b"not an image"])
+def test_corrupt_texture_is_refused(tmp_path, data):
+    with pytest.raises(MeshError, match=r"texture '.*skin.png' of mesh '.*t.obj' cannot be read \(damaged"):
+        load_mesh(_textured_obj(tmp_path, data))
+
+
+@pytest.mark.parametrize("pixels", [144, 1024])  # over the limit (a warning in Pillow) and over twice it (an error)
+def test_decompression_bomb_texture_is_refused(tmp_path, monkeypatch, pixels):
+    from PIL import Image
+
+    side = int(pixels ** 0.5)
+    obj = _textured_obj(tmp_path, size=(side, side))
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 100)
+    with pytest.raises(MeshError, match="larger than 100 pixels .*decompression bombs"):
+        load_mesh(obj)
+
+
+def test_ply_header_that_promises_too_much(tmp_path):
+    header = ("ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\nproperty float x\n"
+              "property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+              "end_header\n")
+    (tmp_path / "big.ply").write_bytes(header.encode() + b"\0" * 64)
+    with pytest.raises(MeshError, match="truncated: its PLY header promises more"):
+        load_mesh(tmp_path / "big.ply")
+    (tmp_path / "junk.ply").write_bytes(b"\x00\x01 not a ply")
+    with pytest.raises(MeshError, match="is not a PLY file"):
+        load_mesh(tmp_path / "junk.ply")
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+def test_garbage_gltf_is_refused(tmp_path, suffix):
+    (tmp_path / f"x{suffix}").write_bytes(b"glTF\x02\x00\x00\x00garbage" if suffix == ".glb" else b"{\"asset\": 3}")
+    with pytest.raises(MeshError, match="damaged or not a valid|empty|no triangle"):
+        load_mesh(tmp_path / f"x{suffix}")
+
+
+def test_a_folder_is_not_a_mesh(tmp_path):
+    (tmp_path / "d.obj").mkdir()
+    with pytest.raises(MeshError, match="is a folder"):
+        load_mesh(tmp_path / "d.obj")
