@@ -350,7 +350,7 @@ def test_example_scene_and_its_sound_track(tmp_path):
     from faceanim.io.audio import read_audio
 
     script = load_script(ROOT / "examples" / "scene.yaml")
-    assert script.voices == {"en-us": "en-us"} and script.get("face", "default") == "default"
+    assert script.voices == {"en-us": "en-us"} and script.face is None
     scene = build_scene(script, _Rig(), tmp_path)
     stream = scene_stream(scene)
     kinds = {a.name for a in scene.actions}

@@ -15,6 +15,7 @@ import numpy as np
 from faceanim.deform.wires import Curve
 from faceanim.drivers.mpeg4 import Action, FapStream, blend_actions
 from faceanim.errors import FaceAnimError
+from faceanim.limits import check_frames
 from faceanim.face.landmarks import FACE_OVAL
 from faceanim.face.mesh import Mesh
 from faceanim.io.gltf import write_gltf
@@ -67,8 +68,10 @@ def speech_stream(lip_gap: float, phones, fps: float = 25.0, extra: list[Action]
     from faceanim.drivers.speech.visemes import viseme_actions
 
     actions = viseme_actions(phones, lip_gap) + list(extra or [])
+    if not phones and not actions:
+        raise FaceAnimError("no speech was found to animate; check the audio and its transcript")
     end = max([p.end for p in phones] + [a.end for a in actions])
-    return blend_actions(actions, int(np.ceil(end * fps)) + 1, fps, name)
+    return blend_actions(actions, check_frames(int(np.ceil(end * fps)) + 1, "frames of speech"), fps, name)
 
 
 def render_stream(rig: FapRig, stream: FapStream, path, lm478, size: int = 512, audio=None, progress=None) -> Path:

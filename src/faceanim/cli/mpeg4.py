@@ -67,6 +67,12 @@ def _cmd_say(args) -> None:
         raise CommandError("give the text to say, or --audio clip.wav with --transcript clip.txt")
     if args.audio and not args.transcript:
         raise CommandError("--audio needs --transcript (the words spoken in it)")
+    voice = None
+    if args.text is not None:
+        from faceanim.drivers.speech import check_text, check_voice
+
+        check_text(args.text)
+        voice = check_voice(args.voice)
     check_outputs(args.output)
     face = load_face(args)
     rig = FapRig.build(face)
@@ -78,7 +84,7 @@ def _cmd_say(args) -> None:
             phones = align(wav, read_text(args.transcript, "transcript"))
         else:
             wav = Path(tmp) / "speech.wav"
-            phones = say_timed(args.text, wav, voice=args.voice)
+            phones = say_timed(args.text, wav, voice=voice)
         extra = []
         if args.expression:
             end = max(p.end for p in phones)
@@ -120,7 +126,10 @@ def _cmd_fap_write(args) -> None:
             if "=" not in item:
                 raise CommandError(f"--fap takes NAME=VALUE (e.g. open_jaw=300), got '{item}'")
             k, v = item.split("=", 1)
-            faps[k] = v
+            try:
+                faps[k] = float(v)
+            except ValueError:
+                raise CommandError(f"--fap {k}: the value must be a number of FAPU units, got '{v[:20]}'") from None
         events.append({"faps": faps, "at": 0.0, "duration": args.duration, "envelope": args.envelope})
     if args.say:
         events.append({"say": args.say, "at": 0.2})
@@ -148,7 +157,7 @@ def _cmd_direct(args) -> None:
 
     check_outputs(args.output)
     script = load_script(args.script)
-    face = Face.load(face_path(args) or script.get("face", "default"), args.landmarks)
+    face = Face.load(face_path(args) or script.face or "default", args.landmarks)
     rig = FapRig.build(face)
     with tempfile.TemporaryDirectory() as tmp:
         scene = build_scene(script, rig, Path(tmp))

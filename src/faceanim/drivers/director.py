@@ -202,12 +202,6 @@ class Script:
     planned_actions: int = 0  # upper bound of the actions (speech counted after synthesis)
     planned_end: float = 0.0  # end of the timeline without speech, seconds
 
-    def get(self, key: str, default=None):
-        """Dict-style access (``script.get("face", "default")``) for callers written for the old
-        dict scripts; a key that is unset gives ``default``."""
-        value = getattr(self, key, None) if key in ("fps", "seed", "face", "events", "groups") else None
-        return default if value is None else value
-
 
 # ----------------------------------------------------------------------------------- lines
 

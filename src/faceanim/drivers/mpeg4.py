@@ -106,17 +106,22 @@ def blend_actions(actions: list[Action], n_frames: int, fps: float, name: str = 
     """Sample actions to a FAP stream with the paper's weighted blending."""
     if n_frames < 1:
         raise FapError("a FAP stream needs at least one frame")
-    t = np.arange(n_frames) / fps
     num = np.zeros((n_frames, N_FAPS))
     den = np.zeros((n_frames, N_FAPS))
     for a in actions:
-        env = a.envelope_at(t)
+        # only the frames inside the action (its envelope is 0 elsewhere): time ~ total action length
+        lo = max(0, int(np.floor(a.start * fps)))
+        hi = min(n_frames, int(np.ceil(a.end * fps)) + 1)
+        if hi <= lo:
+            continue
+        env = a.envelope_at(np.arange(lo, hi) / fps)
         if not env.any():
             continue
         w = a.weight * env
-        for n, v in a.faps.items():
-            num[:, n - 1] += w * a.intensity * env * v
-            den[:, n - 1] += w
+        cols = np.array([n - 1 for n in a.faps], dtype=np.int64)
+        vals = np.array(list(a.faps.values()), dtype=np.float64)
+        num[lo:hi, cols] += (w * a.intensity * env)[:, None] * vals[None]
+        den[lo:hi, cols] += w[:, None]
     mask = den > 1e-12
     values = np.divide(num, den, out=np.zeros_like(num), where=mask)
     return FapStream(values, mask, fps, name)
