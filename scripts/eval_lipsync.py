@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.drivers.speech import align, phone_viseme, viseme_actions
+from faceanim.drivers.speech.visemes import speech_stream
 from faceanim.face.default import default_face, default_landmarks
 from faceanim.face.face import Face, landmarks_478
-from faceanim.player import speech_stream
 from faceanim.rig.mpeg4 import FapRig
 
 

@@ -13,9 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.deform.wires import Curve
-from faceanim.drivers.mpeg4 import Action, FapStream, blend_actions
+from faceanim.drivers.mpeg4 import FapStream
 from faceanim.errors import FaceAnimError
-from faceanim.limits import check_frames
 from faceanim.face.landmarks import FACE_OVAL
 from faceanim.face.mesh import Mesh
 from faceanim.io.gltf import write_gltf
@@ -59,19 +58,6 @@ def write_rig_gltf(rig: Rig, curves: np.ndarray, path, fps: float, name: str = "
         raise FaceAnimError("the animation moves no control of this face")
     times = np.arange(len(weights)) / fps
     return write_gltf(path, rig.mesh, shapes, times=times, weights=weights, animation_name=name, **options)
-
-
-def speech_stream(lip_gap: float, phones, fps: float = 25.0, extra: list[Action] | None = None,
-                  name: str = "speech") -> FapStream:
-    """A FAP stream for timed phones (co-articulated visemes), plus any other actions.
-    ``lip_gap``: the face's neutral gap between the inner lips in MNS (:attr:`FapRig.lip_gap`)."""
-    from faceanim.drivers.speech.visemes import viseme_actions
-
-    actions = viseme_actions(phones, lip_gap) + list(extra or [])
-    if not phones and not actions:
-        raise FaceAnimError("no speech was found to animate; check the audio and its transcript")
-    end = max([p.end for p in phones] + [a.end for a in actions])
-    return blend_actions(actions, check_frames(int(np.ceil(end * fps)) + 1, "frames of speech"), fps, name)
 
 
 def render_stream(rig: FapRig, stream: FapStream, path, lm478, size: int = 512, audio=None, progress=None) -> Path:

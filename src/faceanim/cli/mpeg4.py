@@ -60,7 +60,7 @@ def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
 def _cmd_say(args) -> None:
     from faceanim.drivers.mpeg4 import Action, expression_faps
     from faceanim.drivers.speech import align, say_timed
-    from faceanim.player import speech_stream
+    from faceanim.drivers.speech.visemes import speech_stream
     from faceanim.rig.mpeg4 import FapRig
 
     if (args.text is None) == (args.audio is None):

@@ -8,9 +8,13 @@ plosive's heavy weight closes the lips even inside an expression that opens the 
 
 from __future__ import annotations
 
-from faceanim.drivers.mpeg4 import Action, fap_set, viseme_table
+import numpy as np
+
+from faceanim.drivers.mpeg4 import Action, blend_actions, fap_set, viseme_table
 from faceanim.drivers.speech.phonemes import Phone
-from faceanim.face.faps import FapError
+from faceanim.errors import FaceAnimError
+from faceanim.face.faps import FapError, FapStream
+from faceanim.limits import check_frames
 
 
 def _phone_map() -> dict[str, int]:
@@ -61,3 +65,14 @@ def viseme_actions(phones: list[Phone], lip_gap: float = 0.0, intensity: float =
                               intensity * g["intensity"], "smooth", ramp, ramp, g["weight"],
                               {"viseme": v, "phone": ph.phone, "phone_start": ph.start, "phone_end": ph.end}))
     return actions
+
+
+def speech_stream(lip_gap: float, phones, fps: float = 25.0, extra: list[Action] | None = None,
+                  name: str = "speech") -> FapStream:
+    """A FAP stream for timed phones (co-articulated visemes), plus any other actions.
+    ``lip_gap``: the face's neutral gap between the inner lips in MNS (:attr:`FapRig.lip_gap`)."""
+    actions = viseme_actions(phones, lip_gap) + list(extra or [])
+    if not phones and not actions:
+        raise FaceAnimError("no speech was found to animate; check the audio and its transcript")
+    end = max([p.end for p in phones] + [a.end for a in actions])
+    return blend_actions(actions, check_frames(int(np.ceil(end * fps)) + 1, "frames of speech"), fps, name)
