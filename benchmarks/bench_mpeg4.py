@@ -16,9 +16,9 @@ import numpy as np
 
 from faceanim.drivers.mpeg4 import FapStream
 from faceanim.drivers.speech import align, say_timed
+from faceanim.drivers.speech.visemes import speech_stream
 from faceanim.face.default import default_face, default_landmarks
 from faceanim.face.face import Face, landmarks_478
-from faceanim.player import speech_stream
 from faceanim.rig.mpeg4 import FapRig
 
 
