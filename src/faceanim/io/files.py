@@ -47,7 +47,8 @@ _MAX_PID = 1 << 22  # Linux's pid_max ceiling
 
 
 def _reason(exc: OSError) -> str:
-    return exc.strerror or type(exc).__name__
+    """The system's one-line reason (strerror); never the text of a tool's error (ffmpeg output)."""
+    return exc.strerror or "the write failed"
 
 
 def check_output_path(path: str | os.PathLike, what: str = "output") -> Path:
