@@ -9,14 +9,24 @@ import stat
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from faceanim.errors import DeformError, FaceAnimError, InputFileError, LandmarkError, MeshError
-from faceanim.io.files import OutputError, atomic_output, check_output_path, remove_stale_temps
+from faceanim.errors import (
+    DeformError,
+    FaceAnimError,
+    InputFileError,
+    LandmarkError,
+    MeshError,
+)
+from faceanim.io.files import (
+    OutputError,
+    atomic_output,
+    check_output_path,
+    remove_stale_temps,
+)
 from faceanim.io.meshio import load_mesh, save_mesh
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
@@ -118,19 +128,17 @@ def test_temp_name_carries_our_pid_and_success_renames(tmp_path):
 def test_failure_leaves_the_old_output_and_no_temp(tmp_path, error):
     out = tmp_path / "out.json"
     out.write_bytes(b"old contents")
-    with pytest.raises(type(error)):
-        with atomic_output(out) as tmp:
-            tmp.write_text("partial")
-            raise error
+    with pytest.raises(type(error)), atomic_output(out) as tmp:
+        tmp.write_text("partial")
+        raise error
     assert listing(tmp_path) == ["out.json"] and out.read_bytes() == b"old contents"
 
 
 def test_oserror_while_writing_becomes_one_line_output_error(tmp_path):
     out = tmp_path / "out.json"
-    with pytest.raises(OutputError) as exc:
-        with atomic_output(out) as tmp:
-            tmp.write_text("partial")
-            raise OSError(28, "No space left on device")
+    with pytest.raises(OutputError) as exc, atomic_output(out) as tmp:
+        tmp.write_text("partial")
+        raise OSError(28, "No space left on device")
     assert one_line(exc) == f"cannot write output '{out}': No space left on device"
     assert listing(tmp_path) == []
 
@@ -142,9 +150,8 @@ def test_rename_failure_becomes_output_error_and_removes_the_temp(tmp_path, monk
         raise PermissionError(13, "Permission denied")
 
     monkeypatch.setattr(os, "replace", fail)
-    with pytest.raises(OutputError, match="Permission denied"):
-        with atomic_output(out) as tmp:
-            tmp.write_text("done")
+    with pytest.raises(OutputError, match="Permission denied"), atomic_output(out) as tmp:
+        tmp.write_text("done")
     assert listing(tmp_path) == []
 
 

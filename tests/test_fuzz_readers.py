@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from faceanim.errors import FaceAnimError  # noqa: E402
+from faceanim.errors import FaceAnimError
 
 # FACEANIM_FUZZ_SCALE=20 runs twenty times the examples with fresh random seeds (a deeper hunt);
 # by default the examples are the same on every run (derandomized), so CI is reproducible
@@ -350,7 +350,7 @@ def test_fuzz_landmarks_from_dict(spec):
     lm = expect_clean(Landmarks.from_dict, spec, "fuzz.json")
     if lm is not None:
         assert np.isfinite(lm.positions).all() and len(set(lm.names)) == len(lm)
-        assert len(set(i for i in lm.indices if i >= 0)) == (lm.indices >= 0).sum()
+        assert len({i for i in lm.indices if i >= 0}) == (lm.indices >= 0).sum()
 
 
 @FUZZ

@@ -169,8 +169,7 @@ def read_fap(path: str | os.PathLike) -> FapStream:
     except UnicodeDecodeError as exc:
         line = data.count(b"\n", 0, exc.start) + 1
         raise InputFileError(f"{p}:{line}: not UTF-8 text; save the .fap file as UTF-8 (or ASCII)") from None
-    if text.startswith("\ufeff"):
-        text = text[1:]  # a byte-order mark from a Windows editor
+    text = text.removeprefix("\ufeff")  # a byte-order mark from a Windows editor
     return parse_fap(text, str(p))
 
 
