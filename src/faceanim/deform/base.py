@@ -65,7 +65,7 @@ class LinearDeformer:
         self.weights = weights
         self.rows = rows
         self._full = self._mask = None  # full-height CSC for sparse evaluation, built on first use
-        self._axis_ops = None  # per-axis columns for blendshape evaluation, built on first use
+        self._axis_ops = None  # the blendshape matrix for apply_blendshapes, built on first use
         self.handle_names = list(handle_names) if handle_names is not None else None
         if self.handle_names is not None and len(self.handle_names) != weights.shape[1]:
             raise DeformError("handle_names must give one name per handle")
@@ -222,25 +222,42 @@ class LinearDeformer:
     def apply_blendshapes(self, curves) -> np.ndarray:
         """Positions (F, V, 3) when the handles come in threes, one (x, y, z) triple per blendshape,
         and handle ``3c + a`` moves along axis ``a`` by ``curves[:, c]``: the same ``rest + W @
-        offsets`` as :meth:`apply` with those offsets, evaluated as ``rest[:, a] + W[:, a::3] @
-        curves.T`` for all frames at once (no zeros multiplied). This is how a rig's blendshape
-        columns are evaluated (:class:`faceanim.rig.rig.Rig`)."""
+        offsets`` as :meth:`apply` with those offsets, evaluated without multiplying the zeros, as
+        ``rest + B @ curves[f]`` with the blendshape matrix ``B[3v + a, c] = W[v, 3c + a]`` (one
+        sparse product per frame, contiguous output; one BLAS product for all frames when dense).
+        This is how a rig's blendshape columns are evaluated (:class:`faceanim.rig.rig.Rig`)."""
         c = np.asarray(curves, dtype=self.rest.dtype)
         if c.ndim != 2 or 3 * c.shape[1] != self.n_handles:
             raise DeformError(f"blendshape curves must have shape (frames, {self.n_handles // 3}), got {c.shape}")
         if self._axis_ops is None:
+            n_v, n_c = self.n_vertices, self.n_handles // 3
             if sp.issparse(self.weights):
-                full, _ = self._sparse_full_rows()
-                self._axis_ops = [sp.csr_matrix(full[:, a::3]) for a in range(3)]
+                w = sp.coo_matrix(self.weights)
+                v = w.row if self.rows is None else self.rows[w.row]
+                self._axis_ops = sp.csr_matrix((w.data, (3 * v + w.col % 3, w.col // 3)), shape=(3 * n_v, n_c))
             else:
-                full = self.dense_weights()
-                self._axis_ops = [np.ascontiguousarray(full[:, a::3]) for a in range(3)]
-        out = np.empty((c.shape[0],) + self.rest.shape, dtype=self.rest.dtype)
-        ct = np.ascontiguousarray(c.T)
-        for a, op in enumerate(self._axis_ops):
-            d = op @ ct  # (V, F)
-            np.add(d.T, self.rest[:, a], out=out[:, :, a])
-        return out
+                full = self.dense_weights()  # (V, 3C)
+                self._axis_ops = np.ascontiguousarray(
+                    full.reshape(n_v, n_c, 3).transpose(1, 0, 2).reshape(n_c, 3 * n_v))  # B^T (C, 3V)
+        op = self._axis_ops
+        rest = self.rest.reshape(-1)
+        out = np.empty((c.shape[0], rest.size), dtype=self.rest.dtype)
+        if sp.issparse(op):
+            def run(lo: int, hi: int) -> None:
+                for f in range(lo, hi):
+                    np.add(rest, op @ c[f], out=out[f])
+
+            n = c.shape[0]
+            workers = min(_THREADS, max(1, n // _FRAME_BLOCK))
+            if workers == 1:
+                run(0, n)
+            else:
+                cuts = np.linspace(0, n, workers + 1).astype(int)
+                with ThreadPoolExecutor(workers) as pool:
+                    list(pool.map(run, cuts[:-1], cuts[1:]))
+        else:
+            np.add(c @ op, rest, out=out)
+        return out.reshape(c.shape[0], -1, 3)
 
     # ------------------------------------------------------------------ composition
     @staticmethod

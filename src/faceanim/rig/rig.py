@@ -85,6 +85,11 @@ class RigidPart:
     hinge: np.ndarray | None = None
 
     @property
+    def rigid(self) -> bool:
+        """Every vertex follows the part fully (weights all 1)."""
+        return bool(np.all(self.weights == 1.0))
+
+    @property
     def controls(self) -> list[str]:
         names = [c for c, _, _ in self.rotations] + [c for c, _ in self.translations]
         return list(dict.fromkeys(names))
@@ -272,16 +277,19 @@ class Rig:
             values = {n: c[active, self.index(n)] for n in part.controls}
             r_local, t = part.transforms(values, len(active))
             r = part.axes.T[None] @ r_local @ part.axes[None]  # in mesh coordinates
-            w = part.weights[:, None]
-            for j, f in enumerate(active):
+            whole = part.rows.size == rest.shape[0] and np.array_equal(part.rows, np.arange(rest.shape[0]))
+            w = part.weights[None, :, None]
+            for lo in range(0, len(active), 16):  # a few frames at a time: bounded temporaries
+                f = active[lo:lo + 16]
+                at = (f,) if whole else (f[:, None], part.rows[None])
+                p = rest[part.rows][None] if part.from_rest else out[at]
+                moved = (p - part.pivot) @ np.swapaxes(r[lo:lo + 16], 1, 2) + (part.pivot + t[lo:lo + 16])[:, None]
                 if part.from_rest:
-                    p = rest[part.rows]
-                    moved = (p - part.pivot) @ r[j].T + part.pivot + t[j]
-                    out[f, part.rows] += w * (moved - p)
+                    out[at] += w * (moved - p)
+                elif part.rigid:
+                    out[at] = moved
                 else:
-                    p = out[f, part.rows]
-                    moved = (p - part.pivot) @ r[j].T + part.pivot + t[j]
-                    out[f, part.rows] = p + w * (moved - p)
+                    out[at] = p + w * (moved - p)
 
     # ------------------------------------------------------------------ linear views
     def blendshape(self, name: str) -> np.ndarray:
