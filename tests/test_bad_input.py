@@ -509,3 +509,16 @@ def test_pick_outside_the_image_is_refused_before_rendering(small_face):
 
 def test_all_errors_are_faceanim_errors():
     assert issubclass(OutputError, FaceAnimError)
+
+
+@pytest.mark.parametrize("z", [5.0, 134217729.0, 1e11])
+def test_points_far_from_the_mesh_are_refused_before_the_closest_point_search(small_face, z):
+    """trimesh's closest-point query fails (IndexError) on points ~1e8 away: refused before it."""
+    from faceanim.deform.gde import GeometryDeformationElement, element_influence
+    from faceanim.face.landmarks import Landmarks
+
+    lm = Landmarks.from_dict({"points": [{"index": 152, "position": [0, -1, z]}]})
+    with pytest.raises(LandmarkError, match="from the surface of"):
+        lm.attached_to(small_face)
+    with pytest.raises(DeformError, match="from the surface"):
+        element_influence(small_face, GeometryDeformationElement((0.0, -1.0, z)))

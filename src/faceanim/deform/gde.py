@@ -224,6 +224,13 @@ def element_influence(mesh, element: GeometryDeformationElement) -> ElementInflu
     control = check_points(e.control, f"GDE '{e.name}' control")[0]
     dist, root = mesh.kdtree.query(control)
     limit = MAX_SURFACE_DISTANCE * mesh.bounding_box_diagonal
+    lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
+    box = float(np.linalg.norm(np.maximum(np.maximum(lo - control, control - hi), 0.0)))
+    if box > limit:  # far outside the mesh's box: refused before the closest-point search
+        raise DeformError(
+            f"GDE '{e.name}': control point {np.round(control, 6).tolist()} is {box:.4g} or more from the "
+            f"surface (more than {limit:.4g}); put control points on or near the mesh"
+        )
     if dist > limit:
         _, sdist, _ = mesh.closest_points(control[None])
         if sdist[0] > limit:

@@ -149,8 +149,18 @@ class Landmarks:
         Used when landmarks come from a file instead of detection. A point farther from the
         surface than ``max_distance`` times the mesh's bounding-box diagonal is refused.
         """
-        pos, dist, tri = mesh.closest_points(self.positions)
         limit = max_distance * mesh.bounding_box_diagonal
+        # points far outside the mesh's box are refused before the closest-point search (whose
+        # tree loses the far points and fails on them)
+        lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
+        box = np.linalg.norm(np.maximum(np.maximum(lo - self.positions, self.positions - hi), 0.0), axis=1)
+        far = np.flatnonzero(box > limit)
+        if far.size:
+            k = far[0]
+            raise LandmarkError(
+                f"landmark '{self.names[k]}' is {box[k]:.4g} or more from the surface of '{mesh.name}' (more than "
+                f"{limit:.4g}); are the landmarks for this mesh and in its units?")
+        pos, dist, tri = mesh.closest_points(self.positions)
         far = np.flatnonzero(dist > limit)
         if far.size:
             k = far[0]
