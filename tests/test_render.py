@@ -7,6 +7,7 @@ import wave
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from faceanim.errors import FaceAnimError
 from faceanim.face.mesh import Mesh, vertex_normals
@@ -147,12 +148,25 @@ def test_back_faces_are_dark_and_front_faces_lit():
         assert check(c), (facing, c)
 
 
-def test_texture_is_mapped_the_right_way_round():
-    """UV (0, 0) is the bottom-left of the image; the image's first row is its top."""
-    v, f, uv = uv_quad(-0.8, 0.8, -0.8, 0.8)
+def uv_grid(k):
+    """k x k vertices over [-0.8, 0.8]^2 facing +z, uv 0..1 across."""
+    t = np.linspace(0.0, 1.0, k)
+    u, w = np.meshgrid(t, t)
+    v = np.stack([-0.8 + 1.6 * u.ravel(), -0.8 + 1.6 * w.ravel(), np.zeros(k * k)], 1)
+    i = (np.arange(k - 1)[None, :] + k * np.arange(k - 1)[:, None]).ravel()
+    f = np.vstack([np.stack([i, i + 1, i + k + 1], 1), np.stack([i, i + k + 1, i + k], 1)])
+    return v, f, np.stack([u.ravel(), w.ravel()], 1)
+
+
+@pytest.mark.parametrize("vertices, shading", [(2, "texture"), (81, "vertex colours")])
+def test_texture_is_mapped_the_right_way_round(vertices, shading):
+    """UV (0, 0) is the bottom-left of the image; the image's first row is its top. Sampled per
+    pixel (a coarse mesh) or per vertex (more vertices than texels) alike."""
+    v, f, uv = uv_grid(vertices)
     n = 100
     with OffscreenRenderer(Mesh(v, f, uv, texture=quadrants()), size=(n, n), parallel=True,
                            frame_vertices=FRAME, margin=1.0) as r:
+        assert r.shading == shading
         img = r.render()
     got = {name: colour_of(img, rows, cols) for name, rows, cols in (
         ("top-left", slice(20, 40), slice(20, 40)), ("top-right", slice(20, 40), slice(60, 80)),
@@ -166,9 +180,28 @@ def test_texture_is_mapped_the_right_way_round():
     # no texture wanted: skin colour, no red or blue quadrants
     with OffscreenRenderer(Mesh(v, f, uv, texture=quadrants()), size=(n, n), parallel=True,
                            frame_vertices=FRAME, margin=1.0, use_texture=False) as r:
+        assert r.shading == "albedo"
         img = r.render()
     assert np.ptp(img[20:80, 20:80].reshape(-1, 3).mean(0)) < 80
     assert img[50, 50, 0] > img[50, 50, 1] > img[50, 50, 2]  # SKIN = (0.87, 0.72, 0.62), lit
+
+
+def test_vertex_colours_are_the_texture_sampled_at_the_vertices():
+    """Per-vertex colours (the default face's case) render like the texture itself where it is
+    smooth on the scale of the triangles; a texture finer than the mesh keeps per-pixel sampling."""
+    k, n = 65, 96
+    v, f, uv = uv_grid(k)
+    x, y = np.meshgrid(np.linspace(0, 1, 48), np.linspace(0, 1, 48))
+    tex = (255 * np.stack([x, 1 - y, 0.5 + 0.5 * np.sin(6 * x * y)], -1)).astype(np.uint8)  # smooth
+    images = {}
+    for texels in (48, 96):  # 2304 texels < 4225 vertices: vertex colours; 9216 > 4225: per pixel
+        t = np.asarray(Image.fromarray(tex).resize((texels, texels), Image.BILINEAR)) if texels != 48 else tex
+        with OffscreenRenderer(Mesh(v, f, uv, texture=t), size=(n, n), parallel=True, frame_vertices=FRAME,
+                               margin=1.0) as r:
+            images[r.shading] = r.render().astype(float)
+    assert set(images) == {"vertex colours", "texture"}
+    inner = (slice(8, 88), slice(8, 88))
+    assert np.abs(images["vertex colours"][inner] - images["texture"][inner]).mean() < 3
 
 
 def test_yaw_turns_the_camera_towards_plus_x():
@@ -263,6 +296,21 @@ def test_new_vertices_move_the_render_and_stay(face):
         assert abs((cols_moved.mean() - cols_rest.mean()) - shift_px) < 1
         with pytest.raises(FaceAnimError):
             r.render(face.vertices[:10])
+
+
+def test_drawing_in_chunks_makes_the_same_picture(face, monkeypatch):
+    """The frame is drawn in a few flushed chunks (so llvmpipe rasterises while the next chunk
+    is set up); the depth test across chunks gives the picture of one draw."""
+    import faceanim.render.gl as gl
+
+    images = []
+    for chunks in (1, 4):
+        monkeypatch.setattr(gl, "CHUNKS", chunks)
+        with OffscreenRenderer(face, size=(160, 160), yaw=40, pitch=10) as r:  # self-occluding view
+            assert len(r._chunks) == chunks
+            images.append(r.render(face.vertices * [1.0, 1.0, 1.6]))
+    assert silhouette(images[0]).mean() > 0.3
+    assert np.array_equal(*images)
 
 
 def test_one_context_shared_and_released(face):

@@ -8,6 +8,7 @@ every renderer of a process (making an EGL context is slow).
 
 from __future__ import annotations
 
+import itertools
 import os
 import threading
 
@@ -29,10 +30,15 @@ HEADLIGHT = 0.25
 # Multisample anti-aliasing: 4x MSAA costs llvmpipe more than twice the frame time (about
 # +10 ms at 512 x 512, benchmarks/bench_render.py), so it is off; set 4 here to have it.
 SAMPLES = 0
+CHUNKS, MIN_CHUNK = 4, 8000  # draw calls per frame, fewest triangles in one (see _setup_gl)
 
 # Lighting is computed per vertex (Gouraud): at 30k vertices a triangle covers a few pixels,
 # so this looks the same as per-pixel lighting, and llvmpipe's cost is mostly per fragment.
-# Both sides are lit in the vertex shader; the fragment shader picks the side it sees.
+# Both sides are lit in the vertex shader; the fragment shader picks the side it sees. Three
+# variants: TEXTURED samples the texture per pixel; VERTEX_COLOUR takes per-vertex colours
+# sampled from the texture once (when the mesh has more vertices than the texture has texels,
+# e.g. the default face: nothing is lost and llvmpipe skips a texture fetch per pixel);
+# neither: one albedo (SKIN).
 _VERTEX_SHADER = """
 uniform mat4 mvp;
 uniform mat3 model;            // mesh -> view coordinates (a rotation)
@@ -41,13 +47,23 @@ uniform float light_power[3];
 uniform vec3 eye;
 uniform vec3 view_dir;         // from the centre to the eye (parallel projection)
 uniform bool parallel;
+uniform float ambient;
+uniform float diffuse;
+uniform float specular;
 uniform float shininess;
 in vec3 in_position;
 in vec3 in_normal;
-out vec3 v_light;              // diffuse front, specular front, diffuse back
-#ifdef TEXTURED
+#if defined(TEXTURED)
 in vec2 in_uv;
 out vec2 v_uv;
+out vec3 v_light;              // front diffuse + ambient, front specular, back diffuse + ambient
+#else
+#if defined(VERTEX_COLOUR)
+in vec3 in_colour;
+#else
+uniform vec3 albedo;
+#endif
+out vec4 v_colour;             // lit front colour, back diffuse + ambient
 #endif
 void main() {
     vec3 p = model * in_position;
@@ -65,53 +81,76 @@ void main() {
             back -= light_power[i] * ndl;
         }
     }
-    v_light = vec3(front, spec, back);
-#ifdef TEXTURED
+#if defined(TEXTURED)
     v_uv = in_uv;
+    v_light = vec3(ambient + diffuse * front, specular * spec, ambient + diffuse * back);
+#else
+#if defined(VERTEX_COLOUR)
+    vec3 base = in_colour;
+#else
+    vec3 base = albedo;
+#endif
+    v_colour = vec4(base * (ambient + diffuse * front) + vec3(specular * spec), ambient + diffuse * back);
 #endif
     gl_Position = mvp * vec4(in_position, 1.0);
 }
 """
 
 _FRAGMENT_SHADER = """
-uniform vec3 albedo;
-uniform vec3 back_colour;
-uniform float ambient;
-uniform float diffuse;
-uniform float specular;
-#ifdef TEXTURED
+uniform vec3 back_colour;      // the inside, lit on its own side, dark and matt
+#if defined(TEXTURED)
 uniform sampler2D tex;
 in vec2 v_uv;
-#endif
 in vec3 v_light;
+#else
+in vec4 v_colour;
+#endif
 out vec3 f_colour;
 void main() {
-    if (gl_FrontFacing) {
-#ifdef TEXTURED
-        vec3 base = texture(tex, v_uv).rgb;
+#if defined(TEXTURED)
+    f_colour = gl_FrontFacing ? texture(tex, v_uv).rgb * v_light.x + vec3(v_light.y) : back_colour * v_light.z;
 #else
-        vec3 base = albedo;
+    f_colour = gl_FrontFacing ? v_colour.rgb : back_colour * v_colour.a;
 #endif
-        f_colour = base * (ambient + diffuse * v_light.x) + vec3(specular * v_light.y);
-    } else {  // the inside, lit on its own side, dark and matt
-        f_colour = back_colour * (ambient + diffuse * v_light.z);
-    }
 }
 """
 
 _lock = threading.Lock()
 _state: dict = {}
+_tokens = itertools.count()
+
+
+def _keep_heap_mapped() -> None:
+    """Stop glibc from handing the heap back to the kernel after every frame.
+
+    llvmpipe allocates and frees megabytes of vertex and bin memory per draw; with glibc's
+    default thresholds the freed top of the heap is trimmed and the next frame faults the
+    pages back in, which took about a quarter of the CPU time of a frame (perf: brk and page
+    faults). Up to 128 MiB of freed heap now stays mapped, and blocks under 32 MiB come from the
+    heap instead of fresh mmaps. A process-wide setting, made once, with the first GL context.
+    """
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD (the largest glibc takes)
+        libc.mallopt(-1, 128 << 20)  # M_TRIM_THRESHOLD
+    except (OSError, AttributeError):  # not glibc: leave the allocator alone
+        pass
 
 
 def gl_context():
     """The process's moderngl context (headless EGL), made on first use and reused."""
     with _lock:
         ctx = _state.get("ctx")
+        if ctx is not None and _state.get("pid") == os.getpid() and not _alive(ctx):
+            ctx = None  # e.g. another library terminated the shared EGL display (VTK does on close)
         if ctx is None or _state.get("pid") != os.getpid():  # a forked child needs its own
             try:
                 import moderngl
             except ImportError:
                 raise FaceAnimError("rendering needs moderngl (pip install moderngl)") from None
+            _keep_heap_mapped()
             try:
                 ctx = moderngl.create_standalone_context(require=330, backend="egl")
             except Exception as exc:
@@ -119,17 +158,59 @@ def gl_context():
                     f"could not make an offscreen OpenGL context with EGL ({exc}); on Debian/Ubuntu "
                     "install libegl1 libegl-mesa0 libgl1-mesa-dri (Mesa's software renderer)") from None
             _state.clear()
-            _state.update(ctx=ctx, pid=os.getpid(), programs={})
+            _state.update(ctx=ctx, pid=os.getpid(), programs={}, owners={}, flush=_gl_flush())
         return ctx
 
 
-def _program(ctx, textured: bool):
+_DEFINES = {"texture": "#define TEXTURED\n", "vertex colours": "#define VERTEX_COLOUR\n", "albedo": ""}
+
+
+def _gl_flush():
+    """glFlush of the current context (moderngl has only glFinish), or None."""
+    try:
+        import ctypes
+
+        egl = ctypes.CDLL("libEGL.so.1")
+        egl.eglGetProcAddress.restype = ctypes.c_void_p
+        egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+        address = egl.eglGetProcAddress(b"glFlush")
+        return ctypes.CFUNCTYPE(None)(address) if address else None
+    except (OSError, AttributeError):
+        return None
+
+
+def _alive(ctx) -> bool:
+    try:
+        with ctx:
+            ctx.buffer(reserve=4).release()
+        return True
+    except Exception:
+        return False
+
+
+def _program(ctx, shading: str):
     programs = _state["programs"]
-    if textured not in programs:
-        head = "#version 330\n" + ("#define TEXTURED\n" if textured else "")
-        programs[textured] = ctx.program(vertex_shader=head + _VERTEX_SHADER,
-                                          fragment_shader=head + _FRAGMENT_SHADER)
-    return programs[textured]
+    if shading not in programs:
+        head = "#version 330\n" + _DEFINES[shading]
+        programs[shading] = ctx.program(vertex_shader=head + _VERTEX_SHADER,
+                                         fragment_shader=head + _FRAGMENT_SHADER)
+    return programs[shading]
+
+
+def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(N, 3) float32 colours in [0, 1] of ``texture`` (row 0 at the top) at ``uv`` (v up),
+    bilinear with clamped edges, as OpenGL samples it."""
+    img = np.asarray(texture)[..., :3].astype(np.float32) / 255.0
+    h, w = img.shape[:2]
+    x = np.clip(np.asarray(uv[:, 0], dtype=np.float64) * w - 0.5, 0, w - 1)
+    y = np.clip((1.0 - np.asarray(uv[:, 1], dtype=np.float64)) * h - 0.5, 0, h - 1)
+    x0 = np.minimum(x.astype(np.int64), w - 2 if w > 1 else 0)
+    y0 = np.minimum(y.astype(np.int64), h - 2 if h > 1 else 0)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
+    bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
+    return np.ascontiguousarray(top * (1 - fy) + bottom * fy, dtype=np.float32)
 
 
 class OffscreenRenderer:
@@ -154,8 +235,6 @@ class OffscreenRenderer:
                  parallel: bool = False, rotation: np.ndarray | None = None,
                  frame_vertices: np.ndarray | None = None, use_texture: bool = True,
                  background=BACKGROUND, margin: float = 1.08):
-        import moderngl
-
         self.mesh = mesh
         self.size = (int(size[0]), int(size[1]))
         if min(self.size) < 1:
@@ -168,6 +247,12 @@ class OffscreenRenderer:
         self._normals = VertexNormals(mesh.faces, mesh.n_vertices,
                                       rows=None if self._identity else self._source)
         self.textured = bool(use_texture and uv is not None and mesh.texture is not None)
+        if not self.textured:
+            self.shading = "albedo"
+        elif len(self._source) >= mesh.texture.shape[0] * mesh.texture.shape[1]:
+            self.shading = "vertex colours"  # the texture holds no detail between the vertices
+        else:
+            self.shading = "texture"
 
         fv = self._view(mesh.vertices if frame_vertices is None else frame_vertices)
         self.camera = Camera(fv, self.size, yaw, pitch, parallel, margin)
@@ -182,14 +267,27 @@ class OffscreenRenderer:
         self._mvp = np.diag([1.0, -1.0, 1.0, 1.0]) @ self._mvp
 
         self._resources = []
+        self._vao = None
         self.ctx = ctx = gl_context()
-        self._program = _program(ctx, self.textured)
+        with ctx:
+            self._setup_gl(ctx, faces, uv)
+
+    def _setup_gl(self, ctx, faces: np.ndarray, uv: np.ndarray | None) -> None:
+        import moderngl
+
+        mesh = self.mesh
+        self._program = _program(ctx, self.shading)
+        self._token = next(_tokens)
+        self._uniforms = self._uniform_values()
         n = len(self._source)
         self._positions = self._keep(ctx.buffer(reserve=n * 12, dynamic=True))
         self._normal_buffer = self._keep(ctx.buffer(reserve=n * 12, dynamic=True))
         content = [(self._positions, "3f", "in_position"), (self._normal_buffer, "3f", "in_normal")]
         self._texture = None
-        if self.textured:
+        if self.shading == "vertex colours":
+            colours = sample_texture(mesh.texture, uv)
+            content.append((self._keep(ctx.buffer(colours)), "3f", "in_colour"))
+        elif self.shading == "texture":
             content.append((self._keep(ctx.buffer(np.ascontiguousarray(uv, dtype=np.float32))), "2f", "in_uv"))
             image = np.ascontiguousarray(np.asarray(mesh.texture)[::-1, :, :3], dtype=np.uint8)  # v up
             self._texture = self._keep(ctx.texture((image.shape[1], image.shape[0]), 3, image.tobytes(),
@@ -201,6 +299,12 @@ class OffscreenRenderer:
                 self._texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self._texture.repeat_x = self._texture.repeat_y = False
         index = self._keep(ctx.buffer(np.ascontiguousarray(faces, dtype=np.uint32)))
+        # Draw in a few chunks with a glFlush after each but the last: llvmpipe's rasteriser
+        # threads start on a flushed chunk while this thread shades and sets up the next one's
+        # vertices and triangles (about a quarter off the frame time at 512 x 512, 30k vertices).
+        per_chunk = -(-len(faces) // max(1, min(CHUNKS, len(faces) // MIN_CHUNK)))
+        self._chunks = [(3 * first, 3 * min(per_chunk, len(faces) - first))
+                        for first in range(0, len(faces), per_chunk)]
         self._vao = self._keep(ctx.vertex_array(self._program, content, index_buffer=index, index_element_size=4))
 
         samples = min(SAMPLES, ctx.max_samples)
@@ -230,24 +334,32 @@ class OffscreenRenderer:
         self._positions.write(np.ascontiguousarray(v))
         self._normal_buffer.write(normals)
 
-    def _set_uniforms(self) -> None:
-        prog, cam = self._program, self.camera
-        prog["mvp"].write(self._mvp.T.astype(np.float32).tobytes())  # GL matrices are column-major
-        prog["model"].write(self.rotation.T.astype(np.float32).tobytes())
+    def _uniform_values(self) -> list:
+        """(uniform, bytes) pairs of this renderer's camera, lights and material."""
+        cam = self.camera
+        f32 = lambda *values: np.asarray(values, dtype=np.float32).tobytes()  # noqa: E731
         dirs = [np.asarray(d, dtype=np.float64) / np.linalg.norm(d) for d, _ in LIGHTS] + [cam.direction]
-        prog["light_dir"].write(np.asarray(dirs, dtype=np.float32).tobytes())
-        prog["light_power"].write(np.array([p for _, p in LIGHTS] + [HEADLIGHT], dtype=np.float32).tobytes())
-        prog["eye"].value = tuple(cam.eye)
-        prog["view_dir"].value = tuple(cam.direction)
-        prog["parallel"].value = cam.parallel
-        prog["back_colour"].value = BACK_FACE
-        for name, value in (("ambient", AMBIENT), ("diffuse", DIFFUSE), ("specular", SPECULAR),
-                            ("shininess", SHININESS)):
-            prog[name].value = value
-        if self.textured:
-            prog["tex"].value = 0
-        else:
-            prog["albedo"].value = SKIN
+        values = {
+            "mvp": self._mvp.T.astype(np.float32).tobytes(),  # GL matrices are column-major
+            "model": self.rotation.T.astype(np.float32).tobytes(),
+            "light_dir": np.asarray(dirs, dtype=np.float32).tobytes(),
+            "light_power": f32(*[p for _, p in LIGHTS], HEADLIGHT),
+            "eye": f32(*cam.eye), "view_dir": f32(*cam.direction),
+            "parallel": np.int32(cam.parallel).tobytes(),
+            "albedo": f32(*SKIN), "back_colour": f32(*BACK_FACE),
+            "ambient": f32(AMBIENT), "diffuse": f32(DIFFUSE), "specular": f32(SPECULAR),
+            "shininess": f32(SHININESS), "tex": np.int32(0).tobytes(),
+        }
+        prog = self._program
+        return [(prog[name], data) for name, data in values.items() if name in prog]
+
+    def _set_uniforms(self) -> None:
+        """Load this renderer's uniforms into the shared program unless they are still there."""
+        owners = _state["owners"]
+        if owners.get(self.shading) != self._token:
+            for uniform, data in self._uniforms:
+                uniform.write(data)
+            owners[self.shading] = self._token
 
     def render(self, vertices: np.ndarray | None = None) -> np.ndarray:
         """(H, W, 3) uint8 image of the mesh, optionally with other vertex positions (which
@@ -256,22 +368,27 @@ class OffscreenRenderer:
 
         if self._vao is None:
             raise FaceAnimError("this renderer is closed")
-        if vertices is not None:
-            self._upload(vertices)
         ctx = self.ctx
-        self._fbo.use()
-        ctx.enable_only(moderngl.DEPTH_TEST)
-        ctx.front_face = "cw"
-        self._fbo.clear(*self.background, 1.0, depth=1.0)
-        self._set_uniforms()
-        if self._texture is not None:
-            self._texture.use(0)
-        self._vao.render(moderngl.TRIANGLES)
-        if self._resolved is not self._fbo:
-            ctx.copy_framebuffer(self._resolved, self._fbo)
         w, h = self.size
         image = np.empty((h, w, 3), dtype=np.uint8)
-        self._resolved.read_into(image, components=3, alignment=1)
+        with ctx:  # current on this thread even if another library made its own GL context current
+            if vertices is not None:
+                self._upload(vertices)
+            self._fbo.use()
+            ctx.enable_only(moderngl.DEPTH_TEST)
+            ctx.front_face = "cw"
+            self._fbo.clear(*self.background, 1.0, depth=1.0)
+            self._set_uniforms()
+            if self._texture is not None:
+                self._texture.use(0)
+            flush = _state.get("flush")
+            for k, (first, count) in enumerate(self._chunks):
+                self._vao.render(moderngl.TRIANGLES, vertices=count, first=first)
+                if flush is not None and k + 1 < len(self._chunks):
+                    flush()
+            if self._resolved is not self._fbo:
+                ctx.copy_framebuffer(self._resolved, self._fbo)
+            self._resolved.read_into(image, components=3, alignment=1)
         return image
 
     def pixel_rays(self, xy_normalised: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -304,8 +421,10 @@ class OffscreenRenderer:
 
     def close(self) -> None:
         """Free the GL buffers, texture and framebuffers (the shared context stays)."""
-        for resource in reversed(self._resources):
-            resource.release()
+        if self._resources:
+            with self.ctx:
+                for resource in reversed(self._resources):
+                    resource.release()
         self._resources = []
         self._vao = None
 
