@@ -344,11 +344,14 @@ def landmark_dicts(draw):
 
 @settings(FUZZ, max_examples=200 * SCALE)
 @given(landmark_dicts())
-def test_fuzz_landmarks_from_dict(spec):
+def test_fuzz_landmarks_from_dict(small_face, spec):
     from faceanim.face.landmarks import Landmarks
 
     lm = expect_clean(Landmarks.from_dict, spec, "fuzz.json")
     if lm is not None:
+        snapped = expect_clean(lm.attached_to, small_face)
+        if snapped is not None:
+            assert np.isfinite(snapped.positions).all()
         assert np.isfinite(lm.positions).all() and len(set(lm.names)) == len(lm)
         assert len({i for i in lm.indices if i >= 0}) == (lm.indices >= 0).sum()
 
