@@ -381,4 +381,7 @@ def test_failed_video_leaves_no_file(tmp_path):
         write_video(tmp_path / "sizes.mp4", [np.zeros((64, 80, 3), np.uint8), np.zeros((64, 64, 3), np.uint8)])
     with pytest.raises(FaceAnimError):
         write_video(tmp_path / "none.mp4", [])
+    with pytest.raises(FaceAnimError, match="ffmpeg"):  # ffmpeg quits (no such sound file) mid-stream
+        write_video(tmp_path / "mute.mp4", (np.zeros((64, 64, 3), np.uint8) for _ in range(60)),
+                    audio=tmp_path / "missing.wav")
     assert list(tmp_path.iterdir()) == []
