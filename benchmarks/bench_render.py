@@ -218,8 +218,11 @@ def main():
     print(f"\n4x MSAA at 512x512: {ms['warm']:.1f} ms a frame (CPU {ms['cpu']:.1f} ms), "
           f"against {base['warm']:.1f} ms (CPU {base['cpu']:.1f} ms) without; off by default")
 
+    from faceanim.render import video
+
     real = VIDEO_FRAMES / FPS
-    print(f"\n| MP4, {VIDEO_FRAMES} frames 512x512 (H.264 crf 18, medium) | time | vs real time ({real:.0f} s) | size |")
+    print(f"\n| MP4, {VIDEO_FRAMES} frames 512x512 (H.264 crf {video.CRF}, {video.PRESET}, "
+          f"{video.ENCODER_THREADS} encoder threads) | time | vs real time ({real:.0f} s) | size |")
     print("|---|---|---|---|")
     for name, make in (("moderngl", gl), ("VTK", vtk)):
         if name == "VTK" and not have_vtk:

@@ -208,7 +208,7 @@ def test_yaw_turns_the_camera_towards_plus_x():
     """A sphere red on its +x half and blue on its -x half: +x is on the right of the front view,
     and a positive yaw (from the subject's left, +x) shows mostly red."""
     s = sphere(0.6, subdivisions=4)
-    uv = np.where(s.vertices[:, :1] > 0, [[0.75, 0.25]], [[0.25, 0.25]])  # bottom row: green | white
+    uv = np.where(s.vertices[:, :1] > 0, [[0.75, 0.5]], [[0.25, 0.5]])  # right half red, left half blue
     tex = np.zeros((8, 8, 3), dtype=np.uint8)
     tex[:, :4], tex[:, 4:] = BLUE, RED
     mesh = Mesh(s.vertices, s.faces, uv, texture=tex)

@@ -27,13 +27,14 @@ AMBIENT, DIFFUSE, SPECULAR, SHININESS = 0.12, 0.9, 0.15, 12.0
 # a headlight shines along the camera's line of sight
 LIGHTS = (((1.5, 2.0, 4.0), 0.75), ((-2.5, 0.5, 3.0), 0.35))
 HEADLIGHT = 0.25
-# Multisample anti-aliasing: 4x MSAA costs llvmpipe more than twice the frame time (about
-# +10 ms at 512 x 512, benchmarks/bench_render.py), so it is off; set 4 here to have it.
+# Multisample anti-aliasing: 4x MSAA costs llvmpipe about three times the frame time (23 ms
+# against 8 ms at 512 x 512, benchmarks/bench_render.py), so it is off; set 4 here to have it.
 SAMPLES = 0
 CHUNKS, MIN_CHUNK = 4, 8000  # draw calls per frame, fewest triangles in one (see _setup_gl)
 
 # Lighting is computed per vertex (Gouraud): at 30k vertices a triangle covers a few pixels,
-# so this looks the same as per-pixel lighting, and llvmpipe's cost is mostly per fragment.
+# so this looks the same as per-pixel lighting, and work per pixel is what a CPU rasteriser
+# pays for.
 # Both sides are lit in the vertex shader; the fragment shader picks the side it sees. Three
 # variants: TEXTURED samples the texture per pixel; VERTEX_COLOUR takes per-vertex colours
 # sampled from the texture once (when the mesh has more vertices than the texture has texels,
