@@ -328,6 +328,21 @@ def test_one_context_shared_and_released(face):
         a.render()
 
 
+def test_renderers_work_from_other_threads(face):
+    """The shared context is made current on whichever thread renders, one at a time."""
+    import threading
+
+    with OffscreenRenderer(face, size=(64, 64), use_texture=False) as r:
+        first = r.render()
+        results = []
+        threads = [threading.Thread(target=lambda: results.append(r.render())) for _ in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    assert len(results) == 4 and all(np.array_equal(img, first) for img in results)
+
+
 # ---------------------------------------------------------------- normals
 def test_vertex_normals_match_the_reference(face, rng):
     ref = vertex_normals(face.vertices, face.faces)

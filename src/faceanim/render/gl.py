@@ -117,6 +117,7 @@ void main() {
 """
 
 _lock = threading.Lock()
+_gl_lock = threading.RLock()  # one thread at a time in the shared context (renderers may live in several)
 _state: dict = {}
 _tokens = itertools.count()
 
@@ -182,7 +183,7 @@ def _gl_flush():
 
 def _alive(ctx) -> bool:
     try:
-        with ctx:
+        with _gl_lock, ctx:
             ctx.buffer(reserve=4).release()
         return True
     except Exception:
@@ -270,7 +271,7 @@ class OffscreenRenderer:
         self._resources = []
         self._vao = None
         self.ctx = ctx = gl_context()
-        with ctx:
+        with _gl_lock, ctx:
             self._setup_gl(ctx, faces, uv)
 
     def _setup_gl(self, ctx, faces: np.ndarray, uv: np.ndarray | None) -> None:
@@ -372,7 +373,7 @@ class OffscreenRenderer:
         ctx = self.ctx
         w, h = self.size
         image = np.empty((h, w, 3), dtype=np.uint8)
-        with ctx:  # current on this thread even if another library made its own GL context current
+        with _gl_lock, ctx:  # current on this thread even if another library made its own current
             if vertices is not None:
                 self._upload(vertices)
             self._fbo.use()
@@ -423,7 +424,7 @@ class OffscreenRenderer:
     def close(self) -> None:
         """Free the GL buffers, texture and framebuffers (the shared context stays)."""
         if self._resources:
-            with self.ctx:
+            with _gl_lock, self.ctx:
                 for resource in reversed(self._resources):
                     resource.release()
         self._resources = []
