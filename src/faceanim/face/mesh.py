@@ -210,6 +210,18 @@ class Mesh:
         return Mesh(vertices, self.faces, self.uv, self.face_uv, self.texture, self.polygon_sizes,
                     self.name, self.source)
 
+    def faceted(self) -> Mesh:
+        """The same surface with every triangle on vertices of its own (3T vertices): its vertex
+        normals are the face normals, so it renders flat-shaded (sharper creases for landmark
+        detection)."""
+        t = len(self.faces)
+        corners = np.arange(3 * t).reshape(t, 3)
+        uv = face_uv = None
+        if self.uv is not None:
+            uv, face_uv = self.uv[self.face_uv].reshape(-1, 2), corners
+        return Mesh(self.vertices[self.faces].reshape(-1, 3), corners, uv, face_uv, self.texture,
+                    name=self.name, source=self.source)
+
     def per_vertex_uv(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Split vertices along UV seams for formats with one UV per vertex (glTF, renderers).
 
