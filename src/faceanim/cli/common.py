@@ -132,7 +132,20 @@ def write_pose(args, face, shapes: dict[str, np.ndarray], pose: str, weight: flo
         curves[1, rig.index(pose)] = weight
         return [write_rig_gltf(rig, curves, out, fps=1.0, name="expression", names=rig.controls,
                                quantize=getattr(args, "compact", False))]
-    return save_mesh(face.mesh, out, vertices=rig.pose({pose: weight}))
+    return save_mesh(face.mesh, out, vertices=rig.pose({pose: weight}), avoid=named_paths(args))
+
+
+def named_paths(args) -> list[str]:
+    """Every path-like value given on the command line but the output: files a format's
+    companions (an OBJ's .mtl and texture) must never take."""
+    out = []
+    for key, value in vars(args).items():
+        if key == "output" or key == "func":
+            continue
+        for v in value if isinstance(value, list) else [value]:
+            if isinstance(v, str) and v:
+                out.append(v)
+    return out
 
 
 def report(paths) -> None:

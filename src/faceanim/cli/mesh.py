@@ -15,6 +15,7 @@ from faceanim.cli.common import (
     add_output,
     check_outputs,
     face_path,
+    named_paths,
     report,
 )
 
@@ -51,7 +52,7 @@ def _cmd_deform(args) -> None:
     mesh = default_face() if path in (None, "default") else load_mesh(path)
     deformer, offsets = load_handles(args.handles, mesh, args.forward, args.up)
     deformed = deformer.apply(offsets)
-    written = save_mesh(mesh, args.output, deformed, avoid=[args.image] if args.image else ())
+    written = save_mesh(mesh, args.output, deformed, avoid=named_paths(args))
     moved = int((np.abs(deformed - mesh.vertices).max(1) > 0).sum())
     print(f"deformed {moved} of {mesh.n_vertices} vertices; wrote {', '.join(map(str, written))}")
     if args.image:
@@ -88,7 +89,7 @@ def _cmd_preprocess(args) -> None:
     else:
         ref = AverageFace.load(args.reference) if args.reference else None
         grid = preprocess(face.mesh, face.landmarks, ref, args.grid, args.crop)
-    written = save_mesh(grid.mesh, args.output, avoid=[lm_path])
+    written = save_mesh(grid.mesh, args.output, avoid=[lm_path, *named_paths(args)])
     write_json(lm_path, {"scheme": "mediapipe478", "points": [
         {"index": i, "position": [float(x) for x in p]} for i, p in enumerate(grid.landmarks)]})
     print(f"wrote {', '.join(map(str, written))} ({grid.mesh.n_vertices} grid vertices of {args.grid}x{args.grid}) "
