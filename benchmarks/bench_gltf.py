@@ -1,7 +1,7 @@
 """GLB size and write time, plain against quantised (KHR_mesh_quantization), and the
 dequantisation error of the quantised file.
 
-Run:  .venv/bin/python benchmarks/bench_gltf.py          (about half a minute on 2 cores)
+Run:  .venv/bin/python benchmarks/bench_gltf.py [--blas-threads N]     (seconds on 2 cores)
 
 The 30k-vertex default face with N = 10 and 60 morph targets, each written with a 3-frame
 weight animation (as `faceanim au ... -o x.glb` does), twice:
@@ -9,7 +9,7 @@ weight animation (as `faceanim au ... -o x.glb` does), twice:
   `faceanim au --halves` builds them), the first N in the rig's order;
 - "bumps": N synthetic smooth deltas (a Gaussian of 1.5 cm radius, cut at 1e-3 of its peak,
   peaks of a few millimetres to a centimetre).
-Write time is the best of 3. The error columns read the quantised file back (pygltflib),
+Write time is the best of 3 (benchmarks/_timing.py). The error columns read the quantised file back (pygltflib),
 dequantise by the spec (max(q / 32767, -1) times the node scale, plus its translation for
 positions) and compare with the float64 input: the largest error of any coordinate, in
 micrometres and as a share of the face's bounding-box diagonal, and (err/peak) the worst ratio
@@ -20,18 +20,14 @@ if larger): the quantised file shares one scale between positions and all deltas
 
 from __future__ import annotations
 
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import pygltflib
+from _timing import arguments, best, blas_threads, fmt_ratio, header, table
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-
-from faceanim.face.default import default_face, default_landmarks
-from faceanim.face.face import Face, landmarks_478
+from faceanim.face.face import Face
 from faceanim.io.gltf import write_gltf
 from faceanim.rig.transfer import ExpressionTransfer, default_model
 
@@ -95,37 +91,37 @@ def best_write(path: Path, mesh, shapes, quantize: bool) -> float:
     times = np.array([0.0, 1.0, 2.0])
     weights = np.zeros((3, len(names)))
     weights[1, 0] = 1.0
-    best = np.inf
-    for _ in range(3):
-        t = time.perf_counter()
-        write_gltf(path, mesh, shapes, times, weights, quantize=quantize)
-        best = min(best, time.perf_counter() - t)
-    return best
+    return best(lambda: write_gltf(path, mesh, shapes, times, weights, quantize=quantize), repeat=3, warmup=0)
 
 
 def main() -> None:
-    mesh = default_face()
-    diag = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
-    rig = ExpressionTransfer(Face(mesh, landmarks_478(mesh, default_landmarks(mesh)))).rig(default_model(), sides=True)
-    au = rig.blendshape_dict()
-    print(f"default face: {mesh.n_vertices} vertices, {mesh.n_faces} triangles, bounding-box diagonal "
-          f"{diag * 100:.1f} cm; AU rig: {len(au)} targets")
-    print()
-    head = (f"{'targets':<12}{'N':>4}{'plain MB':>10}{'quant. MB':>11}{'ratio':>7}{'plain s':>9}{'quant. s':>10}"
-            f"{'pos err um':>12}{'delta err um':>14}{'err/diag':>10}{'err/peak':>10}")
-    print(head)
-    print("-" * len(head))
-    with tempfile.TemporaryDirectory() as tmp:
-        for label, source in (("AU rig", au), ("bumps", None)):
-            for n in (10, 60):
-                shapes = dict(list(au.items())[:n]) if source is not None else bumps(mesh, n)
-                plain, small = Path(tmp) / "plain.glb", Path(tmp) / "small.glb"
-                t_plain = best_write(plain, mesh, shapes, quantize=False)
-                t_small = best_write(small, mesh, shapes, quantize=True)
-                p_err, d_err, share = errors(small, mesh, shapes)
-                a, b = plain.stat().st_size, small.stat().st_size
-                print(f"{label:<12}{n:>4}{a / 1e6:>10.2f}{b / 1e6:>11.2f}{a / b:>7.2f}{t_plain:>9.2f}{t_small:>10.2f}"
-                      f"{p_err * 1e6:>12.2f}{d_err * 1e6:>14.2f}{max(p_err, d_err) / diag:>10.1e}{share:>10.1e}")
+    args = arguments(__doc__)
+    with blas_threads(args.blas_threads):
+        header("bench_gltf: plain against quantised GLB")
+        face = Face.default()
+        mesh = face.mesh
+        diag = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
+        rig = ExpressionTransfer(face).rig(default_model(), sides=True)
+        au = rig.blendshape_dict()
+        print(f"default face: {mesh.n_vertices} vertices, {mesh.n_faces} triangles, bounding-box diagonal "
+              f"{diag * 100:.1f} cm; AU rig: {len(au)} targets")
+        print()
+        rows = []
+        with tempfile.TemporaryDirectory() as tmp:
+            for label, source in (("AU rig", au), ("bumps", None)):
+                for n in (10, 60):
+                    shapes = dict(list(au.items())[:n]) if source is not None else bumps(mesh, n)
+                    plain, small = Path(tmp) / "plain.glb", Path(tmp) / "small.glb"
+                    t_plain = best_write(plain, mesh, shapes, quantize=False)
+                    t_small = best_write(small, mesh, shapes, quantize=True)
+                    p_err, d_err, share = errors(small, mesh, shapes)
+                    a, b = plain.stat().st_size, small.stat().st_size
+                    rows.append([label, n, f"{a / 1e6:.2f}", f"{b / 1e6:.2f}", fmt_ratio(a / b), f"{t_plain:.2f}",
+                                 f"{t_small:.2f}", fmt_ratio(t_plain / t_small), f"{p_err * 1e6:.2f}",
+                                 f"{d_err * 1e6:.2f}", f"{max(p_err, d_err) / diag:.1e}", f"{share:.1e}"])
+        table(rows, ["targets", "N", "plain MB", "quant. MB", "size ratio", "plain s", "quant. s",
+                     "write time ratio", "pos err um", "delta err um", "err/diag", "err/peak"],
+              notes=["the baseline is the plain (float32) GLB written in the same run; write times: best of 3"])
 
 
 if __name__ == "__main__":
