@@ -32,6 +32,7 @@ from faceanim.errors import LandmarkError, MeshError
 from faceanim.face.frame import face_frame
 from faceanim.face.landmarks import BASIC22, FACE_OVAL
 from faceanim.face.mesh import Mesh
+from faceanim.limits import MAX_GRID
 
 DEFAULT_GRID = 150
 # the four landmarks of the normalisation (MediaPipe indices): nose tip, outer eye corners
@@ -208,12 +209,27 @@ class AverageFace:
 
         if not Path(path).is_file():
             raise InputFileError(f"average face model '{path}' does not exist; check the path")
+        what = f"'{path}' is not an average face model written by faceanim"
         try:
-            with np.load(path) as d:
-                return cls(d["x"].astype(np.float64), d["y"].astype(np.float64), d["depth"].astype(np.float64),
-                           d["landmarks"], tuple(str(s) for s in d["sources"]))
-        except (OSError, ValueError, KeyError, EOFError) as exc:
-            raise InputFileError(f"'{path}' is not an average face model written by faceanim ({exc})") from None
+            with np.load(path, allow_pickle=False) as d:
+                if not hasattr(d, "files") or not {"x", "y", "depth", "landmarks"} <= set(d.files):
+                    raise InputFileError(f"{what} (it needs the arrays x, y, depth and landmarks)")
+                x, y, depth, lm = (np.asarray(d[k]) for k in ("x", "y", "depth", "landmarks"))
+                sources = tuple(str(s) for s in np.atleast_1d(d["sources"])) if "sources" in d.files else ()
+        except InputFileError:
+            raise
+        except Exception as exc:  # zip, npy and decompression errors of a damaged file
+            raise InputFileError(f"{what} ({type(exc).__name__}: the file is damaged or of another kind)") from None
+        for name, a in (("x", x), ("y", y), ("depth", depth), ("landmarks", lm)):
+            if a.dtype.kind not in "fiu":
+                raise InputFileError(f"{what} ({name} is not numeric)")
+        n = x.shape[0] if x.ndim == 1 else 0
+        if not (x.ndim == 1 and y.ndim == 1 and 2 <= n <= MAX_GRID and y.shape == (n,) and depth.shape == (n, n)):
+            raise InputFileError(f"{what} (x and y must be 2..{MAX_GRID} grid positions and depth n x n)")
+        if lm.shape != (478, 3) or not np.all(np.isfinite(lm)) or not np.all(np.isfinite(x)) \
+                or not np.all(np.isfinite(y)) or np.isinf(depth).any():
+            raise InputFileError(f"{what} (landmarks must be 478 finite points; x, y finite; depth finite or NaN)")
+        return cls(x.astype(np.float64), y.astype(np.float64), depth.astype(np.float64), lm.astype(np.float64), sources)
 
 
 def _normalised_landmarks(lm478: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ from importlib import resources
 
 import numpy as np
 
+from faceanim.deform.rbf import check_number, check_points
 from faceanim.deform.wires import (
     Curve,
     Wire,
@@ -29,10 +30,15 @@ from faceanim.deform.wires import (
 )
 from faceanim.errors import DeformError, InputFileError
 from faceanim.face.frame import face_frame
+from faceanim.face.landmarks import SLITS
 from faceanim.face.mesh import Mesh
 from faceanim.face.regions import past_corners, smoothstep
 from faceanim.io.files import read_json, write_json
 from faceanim.rig.rig import Rig
+
+MAX_WIRES = 200  # wires in one template file
+MAX_WIRE_CONTROLS = 1000  # control points of one wire
+MAX_EDITS = 10_000  # edits in one edit file
 
 BLENDING_FUNCTIONS = {
     "linear": lambda t: t,
@@ -86,9 +92,7 @@ class WireSet:
         masks = None
         if lm478 is not None and isinstance(mesh, Mesh) and any(self.sides):
             from faceanim.face.regions import slit_sides
-            from faceanim.rig.facs import default_library
 
-            library = default_library()
             lower = slit_sides(mesh, lm478)
             frame = face_frame(lm478)
             x = frame.to_local(v)[:, 0]
@@ -99,7 +103,7 @@ class WireSet:
                     continue
                 # the side matters between the slit's corners; beyond them both wires act, faded
                 # in over a fifth of the slit's width, so the skin past the corners has no seam
-                corner_x = frame.to_local(np.asarray(lm478)[list(library.slits[side[0]]["corners"])])[:, 0]
+                corner_x = frame.to_local(np.asarray(lm478)[list(SLITS[side[0]]["corners"])])[:, 0]
                 beyond = past_corners(x, corner_x, 1.0, 0.4)
                 own = lower[side[0]] == (side[1] == "lower")
                 masks.append(np.where(own, 1.0, beyond))
@@ -154,22 +158,54 @@ class WireTemplate:
 
     @classmethod
     def from_dict(cls, d, source: str = "wire file") -> WireTemplate:
+        """A template from its JSON form (:meth:`to_dict`), every field checked."""
+        def bad(msg: str) -> InputFileError:
+            return InputFileError(f"{source}: not a faceanim wire template ({msg})")
+
+        if not isinstance(d, dict) or not isinstance(d.get("wires"), list) or not d["wires"]:
+            raise bad("it needs a non-empty 'wires' list")
+        if len(d["wires"]) > MAX_WIRES:
+            raise bad(f"more than {MAX_WIRES} wires")
         try:
+            n_vertices = check_number(d.get("n_vertices"), "n_vertices", 1, 1e8, integer=True)
+            k = check_number(d.get("k", 2.0), "k", 0.0, 64.0)
             wires, groups, controls, scales, sides = [], [], [], [], []
-            for w in d["wires"]:
-                wires.append(Wire(Curve(np.asarray(w["reference"], dtype=np.float64)), w["range"], str(w["name"])))
-                groups.append(str(w.get("group", "other")))
-                sides.append(tuple(w["side"]) if w.get("side") else None)
-                c = np.asarray(w["wire"], dtype=np.float64)
-                if c.shape != wires[-1].reference.control.shape:
-                    raise DeformError(f"wire '{w['name']}' has {len(c)} wire control points for "
-                                      f"{wires[-1].reference.n_control} reference ones")
+            for j, w in enumerate(d["wires"]):
+                if not isinstance(w, dict):
+                    raise bad(f"wire {j} is not an object")
+                name = w.get("name")
+                if not isinstance(name, str) or not name:
+                    raise bad(f"wire {j} needs a name")
+                reference = check_points(w.get("reference"), f"wire '{name}' reference", min_count=4)
+                if len(reference) > MAX_WIRE_CONTROLS:
+                    raise bad(f"wire '{name}' has more than {MAX_WIRE_CONTROLS} control points")
+                r = w.get("range")
+                r = [check_number(x, f"wire '{name}' range", 0.0, 1e6, low_inclusive=False)
+                     for x in (r if isinstance(r, list) else [r])]
+                wires.append(Wire(Curve(reference), np.array(r), name))
+                group = w.get("group", "other")
+                if not isinstance(group, str):
+                    raise bad(f"wire '{name}' group must be text")
+                groups.append(group)
+                side = w.get("side")
+                if side is not None:
+                    if not (isinstance(side, list) and len(side) == 2 and side[0] in SLITS
+                            and side[1] in ("upper", "lower")):
+                        raise bad(f"wire '{name}' side must be [slit, 'upper' | 'lower'] with a slit of "
+                                  f"{', '.join(SLITS)}")
+                    side = tuple(side)
+                sides.append(side)
+                c = check_points(w.get("wire"), f"wire '{name}' control points")
+                if c.shape != reference.shape:
+                    raise bad(f"wire '{name}' has {len(c)} wire control points for {len(reference)} reference ones")
                 controls.append(c)
-                scales.append(float(w.get("scale", 1.0)))
-            return cls(WireSet(wires, groups, float(d.get("k", 2.0)), sides), controls, np.array(scales),
-                       int(d["n_vertices"]), dict(d.get("meta", {})))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputFileError(f"{source}: not a faceanim wire template ({exc!r})") from None
+                scales.append(check_number(w.get("scale", 1.0), f"wire '{name}' scale", -1e3, 1e3))
+        except DeformError as exc:
+            raise bad(str(exc)) from None
+        meta = d.get("meta", {})
+        if not isinstance(meta, dict):
+            raise bad("'meta' must be an object")
+        return cls(WireSet(wires, groups, k, sides), controls, np.array(scales), n_vertices, dict(meta))
 
     @classmethod
     def load(cls, path) -> WireTemplate:
@@ -274,25 +310,31 @@ def parse_edits(spec, wireset: WireSet) -> tuple[dict[int, list[tuple[int, np.nd
         raise InputFileError('an edit file holds {"edits": [{"wire": name, "control": i, "offset": [dx, dy, dz]}, ...]}')
     moves: dict[int, list] = {}
     scales: dict[int, float] = {}
+    if len(spec["edits"]) > MAX_EDITS:
+        raise InputFileError(f"an edit file holds at most {MAX_EDITS} edits")
     for n, e in enumerate(spec["edits"]):
         if not isinstance(e, dict) or e.get("wire") not in wireset.names:
-            raise InputFileError(f"edit {n}: unknown wire {e.get('wire') if isinstance(e, dict) else e!r}; "
-                                 f"the wires are {', '.join(wireset.names)}")
+            wire = e.get("wire") if isinstance(e, dict) else None
+            shown = f"'{wire[:40]}'" if isinstance(wire, str) else "(none)"
+            raise InputFileError(f"edit {n}: unknown wire {shown}; the wires are {', '.join(wireset.names)}")
+        unknown = sorted(set(e) - {"wire", "control", "offset", "scale"})
+        if unknown:
+            raise InputFileError(f"edit {n}: unknown key '{str(unknown[0])[:40]}'; an edit has wire, control, offset "
+                                 "and/or scale")
         j = wireset.names.index(e["wire"])
-        if "scale" in e:
-            s = float(e["scale"])
-            if not np.isfinite(s):
-                raise InputFileError(f"edit {n}: the scale must be a finite number")
-            scales[j] = s
-        if "control" in e:
-            i = int(e["control"])
-            if not 0 <= i < wireset.wires[j].reference.n_control:
-                raise InputFileError(f"edit {n}: wire '{e['wire']}' has control points 0.."
-                                     f"{wireset.wires[j].reference.n_control - 1}, not {i}")
-            off = np.asarray(e.get("offset"), dtype=np.float64)
-            if off.shape != (3,) or not np.all(np.isfinite(off)):
-                raise InputFileError(f"edit {n}: 'offset' must be [dx, dy, dz]")
-            moves.setdefault(j, []).append((i, off))
+        try:
+            if "scale" in e:
+                scales[j] = check_number(e["scale"], f"edit {n}: the scale", -1e3, 1e3)
+            if "control" in e:
+                last = wireset.wires[j].reference.n_control - 1
+                i = check_number(e["control"], f"edit {n}: wire '{e['wire']}' control (0..{last})", 0, last,
+                                 integer=True)
+                off = check_points(e.get("offset"), f"edit {n}: 'offset' [dx, dy, dz]")
+                if off.shape != (1, 3) or np.abs(off).max() > 1e6:
+                    raise InputFileError(f"edit {n}: 'offset' must be one [dx, dy, dz] of reasonable size")
+                moves.setdefault(j, []).append((i, off[0]))
+        except DeformError as exc:
+            raise InputFileError(str(exc)) from None
     return moves, scales
 
 
