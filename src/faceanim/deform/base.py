@@ -11,6 +11,7 @@ stays bit-identical.
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -19,6 +20,23 @@ import numpy as np
 import scipy.sparse as sp
 
 from faceanim.errors import DeformError
+
+SMALL_SYSTEM = 2000  # dense solves up to this many unknowns run on one BLAS thread (see one_blas_thread)
+
+
+@functools.lru_cache(maxsize=1)
+def _threadpools():
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+def one_blas_thread():
+    """A context in which BLAS (OpenBLAS) uses one thread. On a busy 2-core machine two BLAS
+    threads slow sparse factorisations and small dense solves 2-30x (they wait for each other);
+    the controller is found once per process, so entering this costs microseconds."""
+    return _threadpools().limit(limits=1, user_api="blas")
+
 
 # frames per block in batched dense evaluation: enough rows for BLAS to run near peak
 _FRAME_BLOCK = 64
@@ -93,13 +111,20 @@ class LinearDeformer:
         return sp.issparse(self.weights)
 
     def nbytes(self) -> int:
-        """Memory held by the weight operator, in bytes."""
-        w = self.weights
-        if sp.issparse(w):
-            n = w.data.nbytes + w.indices.nbytes + w.indptr.nbytes
-        else:
-            n = w.nbytes
-        return n + (0 if self.rows is None else self.rows.nbytes)
+        """Memory held by the operator, in bytes: the weights and the evaluation forms built on
+        first use (the full-height sparse copy and its mask, the blendshape matrix)."""
+        def size(a) -> int:
+            if a is None:
+                return 0
+            if sp.issparse(a):
+                a = a.tocsr() if a.format not in ("csr", "csc") else a
+                return a.data.nbytes + a.indices.nbytes + a.indptr.nbytes
+            return a.nbytes
+
+        n = size(self.weights) + (0 if self.rows is None else self.rows.nbytes)
+        if self._full is not None and self._full is not self.weights:
+            n += size(self._full) + size(self._mask)
+        return n + size(self._axis_ops)
 
     def dense_weights(self) -> np.ndarray:
         """The full (V, H) weight matrix, zeros on rows no handle moves."""
@@ -256,7 +281,8 @@ class LinearDeformer:
                 with ThreadPoolExecutor(workers) as pool:
                     list(pool.map(run, cuts[:-1], cuts[1:]))
         else:
-            np.add(c @ op, rest, out=out)
+            np.matmul(c, op, out=out)  # no temporary the size of the output
+            out += rest
         return out.reshape(c.shape[0], -1, 3)
 
     # ------------------------------------------------------------------ composition

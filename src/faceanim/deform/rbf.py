@@ -30,6 +30,7 @@ Coordinates are measured in units of the handles' bounding-box diagonal before t
 
 from __future__ import annotations
 
+import contextlib
 import math
 import numbers
 import warnings
@@ -38,7 +39,7 @@ import numpy as np
 import scipy.linalg as la
 from scipy.spatial import cKDTree
 
-from faceanim.deform.base import LinearDeformer
+from faceanim.deform.base import SMALL_SYSTEM, LinearDeformer, one_blas_thread
 from faceanim.errors import DeformError, LandmarkError
 
 KERNELS = ("multiquadric", "gaussian", "thin_plate_spline")
@@ -261,7 +262,11 @@ class RadialBasis:
         A[:n, :n] = K + smoothing * np.eye(n)
         A[:n, n:] = P
         A[n:, :n] = P.T
-        with warnings.catch_warnings():
+        # small dense solves run 4-30x slower with two OpenBLAS threads on a busy 2-core machine
+        # (a GDE's 21-unknown system: 7.9 ms vs 1.8 ms; benchmarks/bench_deform.py): one thread
+        # below SMALL_SYSTEM unknowns, the machine's threads above
+        limit = one_blas_thread() if n + m <= SMALL_SYSTEM else contextlib.nullcontext()
+        with warnings.catch_warnings(), limit:
             warnings.simplefilter("error", la.LinAlgWarning)
             try:
                 self._lu = la.lu_factor(A, check_finite=False)
@@ -296,7 +301,9 @@ class RadialBasis:
         v = np.asarray(values, dtype=np.float64)
         rhs = np.zeros((self._n + self._m,) + v.shape[1:])
         rhs[: self._n] = v
-        return la.lu_solve(self._lu, rhs, check_finite=False)
+        limit = one_blas_thread() if len(rhs) <= SMALL_SYSTEM else contextlib.nullcontext()
+        with limit:
+            return la.lu_solve(self._lu, rhs, check_finite=False)
 
     def weights(self, points, column: int | None = None) -> np.ndarray:
         """(M, N) matrix mapping values at the centres to values at ``points``.

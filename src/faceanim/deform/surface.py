@@ -24,9 +24,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
-from threadpoolctl import threadpool_limits
 
-from faceanim.deform.base import LinearDeformer
+from faceanim.deform.base import LinearDeformer, one_blas_thread
 from faceanim.errors import DeformError
 
 _COT_CLAMP = 1e3  # bounds cot(angle) on degenerate triangles of raw scans
@@ -111,7 +110,7 @@ def bind_surface(rest, faces, handle_triangles, handle_barycentric, free=None,
     kkt = sp.bmat([[q, con.T], [con, None]]).tocsc()
     # SuperLU calls BLAS on small dense blocks: two OpenBLAS threads on a busy 2-core machine
     # slow the factorisation 2-8x, so the solve runs with one (benchmarks/bench_facs.py)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         try:
             lu = spl.splu(kkt)
         except RuntimeError:
