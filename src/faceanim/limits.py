@@ -58,9 +58,5 @@ def check_size(size, name: str = "--size") -> int:
     return check_range(size, name, MIN_IMAGE_SIZE, MAX_IMAGE_SIZE, integer=True)
 
 
-def check_duration(seconds, name: str = "duration") -> float:
-    return check_range(seconds, name, 0.0, MAX_DURATION)
-
-
 def check_frames(n, name: str = "frames") -> int:
     return check_range(n, name, 1, MAX_FRAMES, integer=True)

@@ -14,7 +14,14 @@ import sys
 from pathlib import Path
 
 from faceanim.cli import facs, mesh, mpeg4, wires
-from faceanim.cli.common import DEFAULT_FPS, FPS, SIZE, check_outputs, quiet_native_logs
+from faceanim.cli.common import (
+    DEFAULT_FPS,
+    DEFAULT_SIZE,
+    FPS,
+    SIZE,
+    check_outputs,
+    quiet_native_logs,
+)
 from faceanim.errors import FaceAnimError
 
 
@@ -72,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="animate the embedded default face: GLB, MP4 and PNGs", formatter_class=fmt)
     d.add_argument("--out", default="faceanim-demo", help="output folder")
     d.add_argument("--fps", type=FPS, default=DEFAULT_FPS, help="frames per second (up to 240)")
-    d.add_argument("--size", type=SIZE, default=512, help="image pixels per side (16..4096)")
+    d.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="image pixels per side (16..4096)")
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=_cmd_demo)
     for group in (mesh, facs, wires, mpeg4):

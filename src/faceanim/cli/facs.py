@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.cli.common import (
+    DEFAULT_SIZE,
     SIZE,
     CommandError,
     add_face,
@@ -72,7 +73,7 @@ def register(sub) -> None:
     a.add_argument("--halves", action="store_true", help="GLB: also one-sided AUn_L / AUn_R morph targets")
     a.add_argument("--compact", action="store_true", help="GLB: quantized (KHR_mesh_quantization), several times smaller")
     add_output(a, SUFFIXES)
-    a.add_argument("--size", type=SIZE, default=512, help="PNG pixels per side (16..4096)")
+    a.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="PNG pixels per side (16..4096)")
     a.set_defaults(func=_cmd_au)
 
     t = sub.add_parser("transfer", help="learn AUs from a neutral/expressive scan pair and apply them to a face")
@@ -89,5 +90,5 @@ def register(sub) -> None:
     t.add_argument("--method", default="surface", choices=["surface", "tps"])
     t.add_argument("--compact", action="store_true", help="GLB: quantized (KHR_mesh_quantization)")
     add_output(t, SUFFIXES)
-    t.add_argument("--size", type=SIZE, default=512, help="PNG pixels per side")
+    t.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="PNG pixels per side")
     t.set_defaults(func=_cmd_transfer)

@@ -8,6 +8,7 @@ import numpy as np
 
 from faceanim.cli.common import (
     ANGLE,
+    DEFAULT_SIZE,
     GRID,
     SIZE,
     CommandError,
@@ -126,7 +127,7 @@ def register(sub) -> None:
     r = sub.add_parser("render", help="render a mesh to PNG")
     add_face(r, landmarks=False)
     add_output(r, [".png"])
-    r.add_argument("--size", type=SIZE, default=512, help="pixels per side (16..4096)")
+    r.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="pixels per side (16..4096)")
     r.add_argument("--yaw", type=ANGLE, default=15.0, help="degrees")
     r.add_argument("--pitch", type=ANGLE, default=4.0, help="degrees")
     r.set_defaults(func=_cmd_render)

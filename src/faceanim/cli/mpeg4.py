@@ -8,6 +8,7 @@ from pathlib import Path
 
 from faceanim.cli.common import (
     DEFAULT_FPS,
+    DEFAULT_SIZE,
     DURATION,
     FPS,
     INTENSITY,
@@ -170,7 +171,7 @@ def _cmd_direct(args) -> None:
 
 def _video_options(p, suffixes) -> None:
     add_output(p, suffixes)
-    p.add_argument("--size", type=SIZE, default=512, help="MP4 pixels per side (16..4096)")
+    p.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="MP4 pixels per side (16..4096)")
     p.add_argument("--compact", action="store_true", help="GLB: quantized (KHR_mesh_quantization)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 

@@ -8,6 +8,7 @@ import numpy as np
 
 from faceanim.cli.common import (
     DEFAULT_FPS,
+    DEFAULT_SIZE,
     FPS,
     FRAMES,
     SIZE,
@@ -100,7 +101,7 @@ def register(sub) -> None:
     wa.add_argument("--edit", metavar="JSON",
                     help='edits: {"edits": [{"wire": "upper_lip", "control": 3, "offset": [0, 0.002, 0]}]}')
     add_output(wa, [".obj", ".ply", ".glb", ".png"])
-    wa.add_argument("--size", type=SIZE, default=512, help="PNG pixels per side")
+    wa.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="PNG pixels per side")
     wa.set_defaults(func=_cmd_apply)
 
     wb = wsub.add_parser("blend", help="blend templates through their wires, feature by feature")
@@ -115,6 +116,6 @@ def register(sub) -> None:
     wb.add_argument("--frames", type=FRAMES, default=60, help="frames per blend (2..200000)")
     wb.add_argument("--fps", type=FPS, default=DEFAULT_FPS, help="frames per second (up to 240)")
     add_output(wb, [".glb", ".mp4"])
-    wb.add_argument("--size", type=SIZE, default=512, help="MP4 pixels per side")
+    wb.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="MP4 pixels per side")
     wb.add_argument("--quiet", action="store_true", help="no progress bar")
     wb.set_defaults(func=_cmd_blend)

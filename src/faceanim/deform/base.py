@@ -141,12 +141,6 @@ class LinearDeformer:
         w = self.weights.astype(dtype)
         return LinearDeformer(self.rest.astype(dtype), w, self.rows, self.handle_names)
 
-    def to_sparse(self, tolerance: float = 0.0) -> LinearDeformer:
-        """Sparse copy, dropping weights with magnitude <= ``tolerance``."""
-        w = self.weights.toarray() if sp.issparse(self.weights) else self.weights
-        w = np.where(np.abs(w) > tolerance, w, 0)
-        return LinearDeformer(self.rest, sp.csr_matrix(w), self.rows, self.handle_names)
-
     def to_dense(self) -> LinearDeformer:
         w = self.weights.toarray() if sp.issparse(self.weights) else self.weights
         return LinearDeformer(self.rest, w, self.rows, self.handle_names)

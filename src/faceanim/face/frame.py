@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from faceanim.errors import LandmarkError
+from faceanim.face.landmarks import CHIN, EYE_OUTER_CORNERS, MOUTH_CORNERS, NOSE_TIP
 
 
 # ---------------------------------------------------------------------------- face geometry
@@ -31,14 +32,19 @@ class FaceFrame:
 
 
 def face_frame(lm478: np.ndarray) -> FaceFrame:
+    """The frame of a face from its 478 landmarks: origin at the nose tip, x along the outer eye
+    corners (to the subject's left), y from the chin up to the eyes (orthogonalised), z = x cross y;
+    refused when the landmarks do not have a face's proportions or are mirrored."""
     p = np.asarray(lm478)
-    x = p[263] - p[33]
+    eye_r, eye_l = (p[i] for i in EYE_OUTER_CORNERS)
+    mouth_r, mouth_l = (p[i] for i in MOUTH_CORNERS)
+    x = eye_l - eye_r
     iod = float(np.linalg.norm(x))
-    mouth = float(np.linalg.norm(p[291] - p[61]))
+    mouth = float(np.linalg.norm(mouth_l - mouth_r))
     if iod <= 0 or mouth <= 0 or not np.isfinite(iod + mouth):
         raise LandmarkError("the eye corners or mouth corners coincide; the landmarks are broken")
     x = x / iod
-    up = (p[33] + p[263]) / 2 - p[152]
+    up = (eye_r + eye_l) / 2 - p[CHIN]
     y = up - x * (up @ x)
     height = np.linalg.norm(y)
     if not (0.2 < mouth / iod < 2.0 and 0.5 < height / iod < 4.0):
@@ -47,10 +53,10 @@ def face_frame(lm478: np.ndarray) -> FaceFrame:
             f"{height / iod:.2f} inter-ocular distances); they are out of order or not for this face")
     y /= height
     z = np.cross(x, y)
-    if (p[4] - (p[33] + p[263]) / 2) @ z <= 0:
+    if (p[NOSE_TIP] - (eye_r + eye_l) / 2) @ z <= 0:
         raise LandmarkError("the nose tip lies behind the eyes in these landmarks: they are mirrored "
                             "(left and right swapped) or out of order")
-    return FaceFrame(p[4].copy(), np.stack([x, y, z]), iod, mouth)
+    return FaceFrame(p[NOSE_TIP].copy(), np.stack([x, y, z]), iod, mouth)
 
 
 def rigid_align(moving: np.ndarray, fixed: np.ndarray, keep: float = 0.5,

@@ -8,11 +8,22 @@ from scipy.sparse import csgraph
 
 from faceanim.errors import LandmarkError
 from faceanim.face.frame import FaceFrame, face_frame
-from faceanim.face.landmarks import EYE_LEFT, EYE_RIGHT, FACE_OVAL, LIP_OUTER, SLITS
+from faceanim.face.landmarks import (
+    CHEEK_EXTREMES,
+    CHIN,
+    EYE_LEFT,
+    EYE_RIGHT,
+    FACE_OVAL,
+    INNER_LIPS,
+    LIP_OUTER,
+    SLITS,
+)
 from faceanim.face.mesh import Mesh
 
 # inter-ocular distances of skin around the face outline that expressions may still move
-FREE_MARGIN = 0.35
+FREE_MARGIN = 0.35  # inter-ocular distances an expression may spread beyond the visible face
+JAW_DROP = 0.9  # inter-ocular distances below the chin an expression may still move (the throat)
+CAVITY_DEPTH = 0.3  # deeper than this behind the front surface: mouth cavity, inside of the cheeks
 
 
 def skin(mesh: Mesh, lm478: np.ndarray) -> np.ndarray:
@@ -72,11 +83,15 @@ def free_region(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame | None = None) -
     near = face.copy()
     dist = graph_distance(mesh, np.flatnonzero(face), limit=FREE_MARGIN * frame.iod)
     near |= np.isfinite(dist)
-    jaw = (local[:, 1] < p[13, 1]) & (local[:, 1] > p[152, 1] - 0.9 * frame.iod) & \
-          (local[:, 2] > min(p[234, 2], p[454, 2]) + 0.1 * frame.iod)
+    # the jaw and throat: below the upper inner lip, down to JAW_DROP below the chin, in front of
+    # the cheeks' widest points
+    upper_lip = p[INNER_LIPS[0], 1]
+    cheeks_z = min(p[i, 2] for i in CHEEK_EXTREMES)
+    jaw = (local[:, 1] < upper_lip) & (local[:, 1] > p[CHIN, 1] - JAW_DROP * frame.iod) & \
+          (local[:, 2] > cheeks_z + 0.1 * frame.iod)
     # the inside of the cheeks and the mouth cavity stay with the skull (they have no handles
     # and would otherwise swing freely); the inner lips just behind the lip line stay free
-    inner = depth_behind_front(mesh, frame) > 0.3 * frame.iod
+    inner = depth_behind_front(mesh, frame) > CAVITY_DEPTH * frame.iod
     return (near | jaw) & skin(mesh, lm478) & ~inner
 
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from faceanim.errors import FaceAnimError
 from faceanim.face.mesh import Mesh
+from faceanim.limits import check_size
 from faceanim.render.camera import Camera
 from faceanim.render.normals import VertexNormals
 
@@ -238,7 +239,7 @@ class OffscreenRenderer:
                  frame_vertices: np.ndarray | None = None, use_texture: bool = True,
                  background=BACKGROUND, margin: float = 1.08):
         self.mesh = mesh
-        self.size = (int(size[0]), int(size[1]))
+        self.size = (check_size(size[0], "image width"), check_size(size[1], "image height"))
         if min(self.size) < 1:
             raise FaceAnimError(f"image size must be positive, got {self.size}")
         self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)

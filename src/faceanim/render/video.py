@@ -11,6 +11,7 @@ import numpy as np
 
 from faceanim.errors import FaceAnimError
 from faceanim.io.files import atomic_output
+from faceanim.limits import check_fps
 
 
 def save_png(path: str | os.PathLike, image: np.ndarray) -> Path:
@@ -72,7 +73,7 @@ class _Pump:
         self._raise()
 
 
-def write_video(path: str | os.PathLike, frames, fps: float = 30.0, progress=None, audio=None) -> Path:
+def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=None, audio=None) -> Path:
     """Encode an iterable of RGB frames to MP4 (H.264, yuv420p, index at the front for playback
     on the web) with imageio-ffmpeg, with the sound of the WAV file ``audio`` (AAC) when given.
 
@@ -82,6 +83,7 @@ def write_video(path: str | os.PathLike, frames, fps: float = 30.0, progress=Non
     """
     import imageio_ffmpeg
 
+    fps = check_fps(fps, "the frame rate")
     path = Path(path)
     with atomic_output(path) as tmp:
         writer = pump = None
