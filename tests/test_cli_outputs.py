@@ -5,6 +5,7 @@ Also the numbers that would exhaust memory, refused by the parser before anythin
 import json
 import os
 
+import numpy as np
 import pytest
 
 from faceanim.cli import main
@@ -152,3 +153,41 @@ def test_say_to_glb_writes_its_sound_beside_and_names_morphs_by_fap(tmp_path, ca
     # the animation and the sound are the same length (to a frame)
     times = gltf.accessors[gltf.animations[0].samplers[0].input]
     assert abs(times.max[0] - info.duration) < 0.1
+    # written again: the glb's own sound file is replaced, no new one piles up
+    assert main(["say", "Hello, how are you?", "-o", str(tmp_path / "h.glb")]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["h-1.wav", "h.glb", "h.wav"]
+    assert (tmp_path / "h.wav").read_bytes() == b"the user's own file"
+
+
+def test_a_failed_glb_leaves_no_sound_beside(tmp_path, capsys):
+    """A stream with only FAPs the default face cannot show (the tongue): nothing is written."""
+    import soundfile
+
+    soundfile.write(str(tmp_path / "s.wav"), np.zeros(8000, dtype=np.float32), 16000)
+    from faceanim.face.faps import FapStream
+    from faceanim.io.fapfile import write_fap
+
+    tongue = FapStream.empty(2, 25.0, "t")
+    tongue.set("raise_tongue_tip", 300.0)
+    write_fap(tmp_path / "t.fap", tongue)
+    assert main(["fap", "play", str(tmp_path / "t.fap"), "--audio", str(tmp_path / "s.wav"),
+                 "-o", str(tmp_path / "t.glb")]) == 2
+    assert "no FAP this face can show" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.wav", "t.fap"]
+
+
+def test_say_to_fap_is_for_any_face(tmp_path):
+    """A .fap file assumes MPEG-4's neutral face (closed lips): the same visemes as `fap write
+    --say`, whatever the face's own lip gap."""
+    import shutil
+
+    from faceanim.io.fapfile import read_fap
+
+    if not shutil.which("espeak-ng"):
+        pytest.skip("espeak-ng is not installed (scripts/setup.sh installs it)")
+    assert main(["say", "hello bob", "-o", str(tmp_path / "a.fap")]) == 0
+    assert main(["fap", "write", "--say", "hello bob", "-o", str(tmp_path / "b.fap")]) == 0
+    a, b = read_fap(tmp_path / "a.fap"), read_fap(tmp_path / "b.fap")
+    lips = [3, 4, 7, 8]  # lower_t_midlip, raise_b_midlip, stretch and raise corners: columns FAP - 1
+    assert np.abs(a.values[:, lips]).max() > 0
+    np.testing.assert_allclose(np.abs(a.values[:, lips]).max(0), np.abs(b.values[:, lips]).max(0), rtol=0.25)

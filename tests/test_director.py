@@ -12,10 +12,6 @@ from faceanim.drivers.director import build_scene, load_script, scene_stream
 from faceanim.errors import InputFileError
 
 
-class _Rig:
-    lip_gap = 0.0
-
-
 def _script(tmp_path, data, name="s.json"):
     p = tmp_path / name
     p.write_text(json.dumps(data) if not isinstance(data, str) else data)
@@ -28,7 +24,7 @@ def test_groups_blinks_and_expressions(tmp_path):
         {"blink": {"every": 0.8, "jitter": 0.2}, "from": 0.5, "to": 3.0},
         {"group": "nod", "at": 1.0}],
         "groups": {"nod": [{"faps": {"head_pitch": 6000}, "at": 0.2, "duration": 0.5, "envelope": "peak"}]}}
-    scene = build_scene(load_script(_script(tmp_path, data)), _Rig(), tmp_path)
+    scene = build_scene(load_script(_script(tmp_path, data)), 0.0, tmp_path)
     s = scene_stream(scene)
     blinks = [a for a in scene.actions if a.name == "blink"]
     starts = np.array([a.start for a in blinks])
@@ -36,7 +32,7 @@ def test_groups_blinks_and_expressions(tmp_path):
     pitch = s.column("head_pitch")
     assert pitch.argmax() / s.fps == pytest.approx(1.45, abs=0.03)  # the group's peak at 1.0 + 0.2 + 0.25
     assert s.column("raise_l_i_eyebrow").max() > 0  # surprise raises the brows
-    again = scene_stream(build_scene(load_script(_script(tmp_path, data)), _Rig(), tmp_path))
+    again = scene_stream(build_scene(load_script(_script(tmp_path, data)), 0.0, tmp_path))
     np.testing.assert_array_equal(again.values, s.values)  # the seed makes jitter repeatable
 
 
@@ -52,7 +48,7 @@ def test_groups_blinks_and_expressions(tmp_path):
 def test_bad_scripts(tmp_path, data, message):
     path = _script(tmp_path, data, "s.yaml")
     with pytest.raises(InputFileError, match=message):
-        build_scene(load_script(path), _Rig(), tmp_path)
+        build_scene(load_script(path), 0.0, tmp_path)
 
 
 @pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="espeak-ng is not installed (scripts/setup.sh installs it)")
@@ -199,7 +195,7 @@ def _refused_fast(tmp_path, data, message, name="s.json"):
     start = time.perf_counter()
     try:
         with pytest.raises(InputFileError) as err:
-            build_scene(load_script(path), _Rig(), tmp_path)
+            build_scene(load_script(path), 0.0, tmp_path)
         elapsed = time.perf_counter() - start
         peak = tracemalloc.get_traced_memory()[1]
     finally:
@@ -246,7 +242,7 @@ def test_huge_scenes_are_refused_before_anything_is_built(tmp_path):
 
 def test_the_largest_allowed_blink_track_is_built(tmp_path):
     data = {"fps": 10, "seed": 1, "events": [{"blink": {"every": 0.5}, "from": 0, "to": 3600}]}
-    scene = build_scene(load_script(_script(tmp_path, data)), _Rig(), tmp_path)
+    scene = build_scene(load_script(_script(tmp_path, data)), 0.0, tmp_path)
     assert len(scene.actions) == 7200 and scene.actions[-1].start == pytest.approx(3599.5)
     assert scene.n_frames == 36000  # ceil((3599.5 + 0.18 + 0.2) * 10) + 1
 
@@ -258,7 +254,7 @@ def test_an_event_with_two_kinds_never_picks_one(tmp_path):
     """It used to be resolved by set.pop(): 31 or 44 frames depending on the run."""
     data = {"events": [{"say": "hello", "expression": "joy", "duration": 1.0}]}
     with pytest.raises(InputFileError, match="this one has both 'say' and 'expression'"):
-        build_scene(data, _Rig(), tmp_path)
+        build_scene(data, 0.0, tmp_path)
 
 
 SCENE = {"fps": 30, "seed": 11, "events": [
@@ -274,7 +270,7 @@ import hashlib, sys
 from pathlib import Path
 from types import SimpleNamespace
 from faceanim.drivers.director import build_scene, load_script, scene_stream
-s = scene_stream(build_scene(load_script(sys.argv[1]), SimpleNamespace(lip_gap=0.0), Path(sys.argv[2])))
+s = scene_stream(build_scene(load_script(sys.argv[1]), 0.0, Path(sys.argv[2])))
 print(s.n_frames, hashlib.sha256(s.values.tobytes() + s.mask.tobytes()).hexdigest())
 """
 
@@ -286,8 +282,8 @@ def test_the_same_scene_gives_the_same_stream_in_any_process(tmp_path):
     import sys
 
     path = _script(tmp_path, SCENE)
-    a = scene_stream(build_scene(load_script(path), _Rig(), tmp_path))
-    b = scene_stream(build_scene(SCENE, _Rig(), tmp_path))  # a dict is validated the same way
+    a = scene_stream(build_scene(load_script(path), 0.0, tmp_path))
+    b = scene_stream(build_scene(SCENE, 0.0, tmp_path))  # a dict is validated the same way
     np.testing.assert_array_equal(a.values, b.values)
     np.testing.assert_array_equal(a.mask, b.mask)
     assert a.n_frames == 101 and a.column("head_pitch").max() > 0 and a.column("close_t_l_eyelid").max() > 0
@@ -351,7 +347,7 @@ def test_example_scene_and_its_sound_track(tmp_path):
 
     script = load_script(ROOT / "examples" / "scene.yaml")
     assert script.voices == {"en-us": "en-us"} and script.face is None
-    scene = build_scene(script, _Rig(), tmp_path)
+    scene = build_scene(script, 0.0, tmp_path)
     stream = scene_stream(scene)
     kinds = {a.name for a in scene.actions}
     assert {"joy", "head_yaw", "head_pitch", "blink"} <= kinds and any(n.startswith("viseme") for n in kinds)
@@ -359,7 +355,7 @@ def test_example_scene_and_its_sound_track(tmp_path):
     x, rate = read_audio(mix_speech(scene, tmp_path / "track.wav"))
     assert rate == 16000 and len(x) == round(stream.duration * 16000)
     (tmp_path / "again").mkdir()
-    again = scene_stream(build_scene(load_script(ROOT / "examples" / "scene.yaml"), _Rig(), tmp_path / "again"))
+    again = scene_stream(build_scene(load_script(ROOT / "examples" / "scene.yaml"), 0.0, tmp_path / "again"))
     np.testing.assert_array_equal(again.values, stream.values)
 
 
@@ -444,7 +440,7 @@ def _check_reader(tmp_path, path) -> None:
     if has_say or script.planned_actions > 300 or (script.planned_end + 1) * script.fps > 20_000:
         return  # valid; too slow to build in a fuzz loop (speech is synthesized)
     try:
-        scene = build_scene(script, _Rig(), tmp_path)
+        scene = build_scene(script, 0.0, tmp_path)
     except FaceAnimError as exc:  # e.g. a scene whose events place nothing
         assert "\n" not in str(exc)
         return

@@ -396,7 +396,30 @@ def test_failed_video_leaves_no_file(tmp_path):
         write_video(tmp_path / "sizes.mp4", [np.zeros((64, 80, 3), np.uint8), np.zeros((64, 64, 3), np.uint8)])
     with pytest.raises(FaceAnimError):
         write_video(tmp_path / "none.mp4", [])
-    with pytest.raises(FaceAnimError, match="ffmpeg"):  # ffmpeg quits (no such sound file) mid-stream
+    with pytest.raises(FaceAnimError, match="does not exist") as exc:  # checked before ffmpeg starts
         write_video(tmp_path / "mute.mp4", (np.zeros((64, 64, 3), np.uint8) for _ in range(60)),
                     audio=tmp_path / "missing.wav")
+    assert "\n" not in str(exc.value)
+    secret = tmp_path / "notes.wav"
+    secret.write_text("password: hunter2\n" * 50)  # not audio: refused without quoting the file
+    with pytest.raises(FaceAnimError) as exc:
+        write_video(tmp_path / "mute.mp4", (np.zeros((64, 64, 3), np.uint8) for _ in range(60)), audio=secret)
+    assert "hunter2" not in str(exc.value) and "\n" not in str(exc.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.wav"]
+
+
+def test_ffmpeg_failure_is_one_line_without_its_log(tmp_path, monkeypatch):
+    """ffmpeg's own output can quote files it read: the error is ours, one line."""
+    import imageio_ffmpeg
+
+    def broken(*args, **kwargs):
+        def gen():
+            yield
+            raise RuntimeError("ffmpeg said: /etc/passwd root:x:0:0\nmore lines")
+        return gen()
+
+    monkeypatch.setattr(imageio_ffmpeg, "write_frames", broken)
+    with pytest.raises(FaceAnimError) as exc:
+        write_video(tmp_path / "x.mp4", (np.zeros((64, 64, 3), np.uint8) for _ in range(5)))
+    assert "passwd" not in str(exc.value) and "\n" not in str(exc.value) and "ffmpeg could not" in str(exc.value)
     assert list(tmp_path.iterdir()) == []

@@ -22,17 +22,6 @@ from faceanim.cli.common import (
 )
 
 
-def sound_beside(out: Path) -> Path:
-    """A free path for the sound written beside a .glb: OUT.wav, else OUT-1.wav, ... (an existing
-    file is never replaced)."""
-    candidate = out.with_suffix(".wav")
-    k = 1
-    while candidate.exists():
-        candidate = out.with_name(f"{out.stem}-{k}.wav")
-        k += 1
-    return candidate
-
-
 def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
     """A FAP stream as .fap, .glb (+ its sound as .wav beside, named in the glb's extras) or .mp4."""
     from faceanim.io.fapfile import write_fap
@@ -43,17 +32,20 @@ def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
     if suffix == ".fap":
         return [write_fap(out, stream)]
     if suffix == ".glb":
-        written = []
-        extras = None
-        if audio is not None:
-            wav = sound_beside(out)
-            from faceanim.io.audio import read_audio, write_wav
+        from faceanim.io.gltf import sound_companion
 
+        wav = sound_companion(out) if audio is not None else None
+        glb = gltf_stream(rig, stream, out, quantize=args.compact, extras={"audio": wav.name} if wav else None)
+        if wav is None:
+            return [glb]
+        from faceanim.io.audio import read_audio, write_wav
+
+        try:
             samples, rate = read_audio(audio)
-            written.append(write_wav(wav, samples, rate))
-            extras = {"audio": wav.name}
-        written.insert(0, gltf_stream(rig, stream, out, quantize=args.compact, extras=extras))
-        return written
+            return [glb, write_wav(wav, samples, rate)]
+        except BaseException:
+            glb.unlink(missing_ok=True)  # no half of the pair left behind
+            raise
     with progress(stream.n_frames, f"rendering {out.name}", args.quiet) as bar:
         return [render_stream(rig, stream, out, face.landmarks, size=args.size, audio=audio, progress=bar)]
 
@@ -74,7 +66,13 @@ def _cmd_say(args) -> None:
 
         check_text(args.text)
         voice = check_voice(args.voice)
+    if args.expression:
+        expression_faps(args.expression)  # an unknown name is refused before any work
     check_outputs(args.output)
+    if args.audio:
+        from faceanim.io.audio import read_audio
+
+        read_audio(args.audio, "recorded speech")
     face = load_face(args)
     rig = FapRig.build(face)
     with tempfile.TemporaryDirectory() as tmp:
@@ -91,7 +89,9 @@ def _cmd_say(args) -> None:
             end = max(p.end for p in phones)
             extra.append(Action(args.expression, expression_faps(args.expression), 0.0, end + 0.2,
                                 args.intensity, "linear", 0.1, 0.1, 0.3))
-        stream = speech_stream(rig.lip_gap, phones, args.fps, extra, name=Path(args.output).stem)
+        # a .fap file is for any face: MPEG-4's neutral face has closed lips, so no gap to close
+        lip_gap = 0.0 if Path(args.output).suffix.lower() == ".fap" else rig.lip_gap
+        stream = speech_stream(lip_gap, phones, args.fps, extra, name=Path(args.output).stem)
         written = _write(args, rig, stream, face, wav)
     print(f"wrote {', '.join(map(str, written))} ({stream.n_frames} frames, {len(phones)} phones, "
           f"{stream.n_frames / stream.fps:.1f} s)")
@@ -103,6 +103,10 @@ def _cmd_fap_play(args) -> None:
 
     check_outputs(args.output)
     stream = read_fap(args.fap)
+    if args.audio:
+        from faceanim.io.audio import read_audio
+
+        read_audio(args.audio, "sound for the animation")
     face = load_face(args)
     rig = FapRig.build(face)
     for warning in rig.check(stream):
@@ -112,8 +116,6 @@ def _cmd_fap_play(args) -> None:
 
 
 def _cmd_fap_write(args) -> None:
-    from types import SimpleNamespace
-
     from faceanim.drivers.director import build_scene, scene_stream
     from faceanim.io.fapfile import write_fap
 
@@ -136,10 +138,15 @@ def _cmd_fap_write(args) -> None:
         events.append({"say": args.say, "at": 0.2})
     if not events:
         raise CommandError("give --expression, --fap NAME=VALUE and/or --say TEXT")
+    from faceanim.limits import MAX_FRAMES
+
+    if args.fps * args.duration > MAX_FRAMES:
+        raise CommandError(f"--fps {args.fps:g} x --duration {args.duration:g} s is more than {MAX_FRAMES} frames; "
+                           "lower one of them")
     check_outputs(args.output)
     with tempfile.TemporaryDirectory() as tmp:
         # MPEG-4's neutral face has closed lips: no gap to close
-        scene = build_scene({"fps": args.fps, "events": events}, SimpleNamespace(lip_gap=0.0), Path(tmp))
+        scene = build_scene({"fps": args.fps, "events": events}, 0.0, Path(tmp))
         stream = scene_stream(scene, Path(args.output).stem)
         write_fap(args.output, stream)
     print(f"wrote {args.output} ({stream.n_frames} frames at {stream.fps:g} fps)")
@@ -158,10 +165,14 @@ def _cmd_direct(args) -> None:
 
     check_outputs(args.output)
     script = load_script(args.script)
-    face = Face.load(face_path(args) or script.face or "default", args.landmarks)
+    scripted = script.face
+    if scripted and scripted != "default" and not Path(scripted).is_absolute():
+        scripted = str(Path(args.script).parent / scripted)  # a script's face is beside the script
+    face = Face.load(face_path(args) or scripted or "default", args.landmarks)
     rig = FapRig.build(face)
+    lip_gap = 0.0 if Path(args.output).suffix.lower() == ".fap" else rig.lip_gap
     with tempfile.TemporaryDirectory() as tmp:
-        scene = build_scene(script, rig, Path(tmp))
+        scene = build_scene(script, lip_gap, Path(tmp))
         stream = scene_stream(scene, Path(args.output).stem)
         audio = mix_speech(scene, Path(tmp) / "track.wav")
         written = _write(args, rig, stream, face, audio)

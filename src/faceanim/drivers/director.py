@@ -637,7 +637,7 @@ class Scene:
         return int(np.ceil(self.duration * self.fps)) + 1
 
 
-def build_scene(script: Script | dict, rig, workdir: Path) -> Scene:
+def build_scene(script: Script | dict, lip_gap: float, workdir: Path) -> Scene:
     """Turn a script (a :class:`Script`, or a dict validated here) into actions, and speech audio
     files in ``workdir``. The same script gives the same scene, run after run."""
     from faceanim.drivers.speech import say_timed
@@ -673,7 +673,7 @@ def build_scene(script: Script | dict, rig, workdir: Path) -> Scene:
                 wav, phones = spoken[ev.say, voice]
                 phones = [type(p)(p.phone, p.start + at, p.end + at, p.word) for p in phones]
                 all_phones.extend(phones)
-                actions.extend(viseme_actions(phones, rig.lip_gap, ev.intensity))
+                actions.extend(viseme_actions(phones, lip_gap, ev.intensity))
                 speech.append((at, wav))
             else:
                 if isinstance(ev, ExpressionEvent):

@@ -292,3 +292,38 @@ def write_gltf(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np
     with atomic_output(path) as tmp:
         gltf.save_binary(str(tmp))
     return path
+
+
+def glb_json(path: str | os.PathLike, limit: int = 64 << 20) -> dict | None:
+    """The JSON chunk of a GLB file (None when the file is not a readable GLB); only the header
+    and that chunk are read."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(20)
+            if len(head) < 20 or head[:4] != b"glTF":
+                return None
+            length = int.from_bytes(head[12:16], "little")
+            if head[16:20] != b"JSON" or not 0 < length <= limit:
+                return None
+            doc = json.loads(fh.read(length))
+        return doc if isinstance(doc, dict) else None
+    except (OSError, ValueError):
+        return None
+
+
+def sound_companion(glb: str | os.PathLike) -> Path:
+    """Where the sound of an animated GLB goes: the file its earlier version names in the scene's
+    ``extras.audio`` (we wrote it: it is replaced with the GLB), else ``OUT.wav``, else
+    ``OUT-1.wav``, ... - never a file the user did not name or we did not write."""
+    out = Path(glb)
+    doc = glb_json(out) if out.is_file() else None
+    if doc:
+        scenes = doc.get("scenes") or [{}]
+        named = (scenes[0].get("extras") or {}).get("audio") if isinstance(scenes[0], dict) else None
+        if isinstance(named, str) and Path(named).name == named and named.lower().endswith(".wav"):
+            return out.with_name(named)
+    candidate, k = out.with_suffix(".wav"), 1
+    while candidate.exists():
+        candidate = out.with_name(f"{out.stem}-{k}.wav")
+        k += 1
+    return candidate

@@ -55,8 +55,8 @@ class _Pump:
                     self.error = exc
 
     def _raise(self) -> None:
-        if self.error is not None:
-            raise FaceAnimError(f"ffmpeg stopped encoding the video: {self.error}") from self.error
+        if self.error is not None:  # ffmpeg's own message is not shown: it can quote any file it read
+            raise FaceAnimError(FFMPEG_FAILED) from self.error
 
     def put(self, frame: np.ndarray) -> None:
         self._raise()
@@ -73,6 +73,10 @@ class _Pump:
         self._raise()
 
 
+FFMPEG_FAILED = ("ffmpeg could not encode the video; check that the sound is a readable audio file and that the "
+                 "disk has room (run with --verbose for ffmpeg's message)")
+
+
 def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=None, audio=None) -> Path:
     """Encode an iterable of RGB frames to MP4 (H.264, yuv420p, index at the front for playback
     on the web) with imageio-ffmpeg, with the sound of the WAV file ``audio`` (AAC) when given.
@@ -84,6 +88,10 @@ def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=Non
     import imageio_ffmpeg
 
     fps = check_fps(fps, "the frame rate")
+    if audio is not None:
+        from faceanim.io.audio import read_audio
+
+        read_audio(audio, "sound for the video")  # a clean error now rather than ffmpeg's later
     path = Path(path)
     with atomic_output(path) as tmp:
         writer = pump = None
@@ -118,5 +126,8 @@ def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=Non
             if pump is not None:
                 pump.stop()
             if writer is not None:
-                writer.close()
+                try:
+                    writer.close()
+                except Exception as exc:  # noqa: BLE001 - ffmpeg's exit status, with its raw log
+                    raise FaceAnimError(FFMPEG_FAILED) from exc
     return path
