@@ -232,3 +232,16 @@ def test_quantized_delta_larger_than_the_face_widens_the_scale(tmp_path, base_fa
     assert np.abs(_accessor(gltf, prim.targets[0]["POSITION"]) * scale - big).max() <= scale / 32767 / 2 * (1 + 1e-6)
     pos = _accessor(gltf, prim.attributes.POSITION) * scale + gltf.nodes[0].translation
     assert np.abs(pos - base_face.vertices).max() <= scale / 32767 / 2 * (1 + 1e-6)
+
+
+def test_a_quantized_glb_is_refused_on_reading_not_misread(tmp_path, base_face):
+    """trimesh ignores the normalized flag of KHR_mesh_quantization (it would return integers
+    thousands of times too large): faceanim refuses the file with a clear message instead."""
+    from faceanim.errors import MeshError
+    from faceanim.io.meshio import load_mesh
+
+    write_gltf(tmp_path / "q.glb", base_face, quantize=True)
+    with pytest.raises(MeshError, match="quantized .* give the file written without --compact"):
+        load_mesh(tmp_path / "q.glb")
+    write_gltf(tmp_path / "p.glb", base_face)
+    np.testing.assert_allclose(load_mesh(tmp_path / "p.glb").vertices, base_face.vertices, atol=1e-6)

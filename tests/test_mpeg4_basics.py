@@ -153,6 +153,11 @@ def test_rotations_and_unsupported_faps(fap_rig, face):
     big.set("raise_l_cornerlip", 10000)
     assert any("clamped" in w for w in fap_rig.check(big))
     np.testing.assert_allclose(fap_rig.evaluate(big)[0], face.vertices + 4096 * fap_rig.blendshape("raise_l_cornerlip"))
+    # open_jaw is unidirectional (faps.json): a negative value is clamped to 0, not a jaw pushed up
+    up = FapStream.empty(1)
+    up.set("open_jaw", -500)
+    assert any("open_jaw" in w and "[0, 4096]" in w for w in fap_rig.check(up))
+    np.testing.assert_array_equal(fap_rig.evaluate(up)[0], face.vertices)
     # a face mask has no tongue: the FAP is reported and does nothing
     assert any("raise_tongue_tip" in w for w in fap_rig.check(s))
     np.testing.assert_array_equal(v[2], face.vertices)

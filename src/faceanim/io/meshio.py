@@ -297,6 +297,14 @@ def _load_with_trimesh(path: Path) -> Mesh:
 
     if path.suffix.lower() == ".ply":
         _check_ply_header(path)
+    if path.suffix.lower() == ".glb":
+        from faceanim.io.gltf import glb_json
+
+        doc = glb_json(path) or {}
+        required = doc.get("extensionsRequired") or []
+        if "KHR_mesh_quantization" in required:
+            raise MeshError(f"mesh '{path}' is quantized (KHR_mesh_quantization, e.g. written with --compact); "
+                            "faceanim reads plain glTF: give the file written without --compact")
     log = logging.getLogger("trimesh")
     level = log.level
     log.setLevel(logging.CRITICAL + 1)  # its warnings would add lines to the one-line error rule

@@ -104,7 +104,11 @@ def _find_eyeballs(mesh: Mesh, fp: FeaturePoints, on_skin: np.ndarray) -> dict:
 
 
 def _limits() -> np.ndarray:
-    return np.array([LIMIT_ROTATION if f.is_rotation else LIMIT_TRANSLATION for f in faps()])
+    """(2, 68) lowest and highest value of each FAP: +-4 FAPU or half a turn, and no negative
+    values for the unidirectional FAPs (open_jaw cannot push the jaw up into the skull)."""
+    high = np.array([LIMIT_ROTATION if f.is_rotation else LIMIT_TRANSLATION for f in faps()])
+    low = np.array([0.0 if f.bidirectional is False else -h for f, h in zip(faps(), high)])
+    return np.stack([low, high])
 
 
 def _falloff(d: np.ndarray, radius: float, plateau: float = PLATEAU) -> np.ndarray:
@@ -269,11 +273,12 @@ class FapRig(Rig):
         used = np.flatnonzero(stream.mask.any(axis=0)) + 1
         out = [f"FAP {n} ({faps()[n - 1].name}): {self.unsupported[n]}" for n in used if n in self.unsupported]
         vals = self.stream_curves(stream)
-        over = np.flatnonzero((np.abs(vals) > self.limits).any(axis=0))
+        low, high = self.limits
+        over = np.flatnonzero(((vals < low) | (vals > high)).any(axis=0))
         for idx in over:
             f = faps()[idx]
-            out.append(f"FAP {f.number} ({f.name}): values up to {np.abs(vals[:, idx]).max():g} are clamped to "
-                       f"+-{self.limits[idx]:g}")
+            out.append(f"FAP {f.number} ({f.name}): values from {vals[:, idx].min():g} to {vals[:, idx].max():g} "
+                       f"are clamped to [{low[idx]:g}, {high[idx]:g}]")
         return out
 
     def evaluate(self, curves) -> np.ndarray:

@@ -148,8 +148,9 @@ class Rig:
         Three handles per control (x, y, z parts of its blendshape); see the module docstring.
     rigid_parts : list of RigidPart
         Applied after the linear step, in order.
-    limits : (C,) array, optional
-        |value| above which a control is clamped (inf: none).
+    limits : (C,) or (2, C) array, optional
+        Range of each control: |value| <= limit, or (lowest, highest) values; values outside are
+        clamped (inf: none).
     """
 
     mesh: Mesh
@@ -169,8 +170,10 @@ class Rig:
         for part in self.rigid_parts:
             if set(part.controls) - known:
                 raise DeformError(f"rigid part '{part.name}' uses unknown controls {set(part.controls) - known}")
-        self.limits = (np.full(len(self.controls), np.inf) if self.limits is None
-                       else np.asarray(self.limits, dtype=np.float64))
+        lim = np.full(len(self.controls), np.inf) if self.limits is None else np.asarray(self.limits, dtype=np.float64)
+        self.limits = np.stack([-lim, lim]) if lim.ndim == 1 else lim
+        if self.limits.shape != (2, len(self.controls)) or (self.limits[0] > self.limits[1]).any():
+            raise DeformError(f"control limits must be (C,) or (2, C) low <= high, got shape {self.limits.shape}")
         self._index = {n: k for k, n in enumerate(self.controls)}
 
     # ------------------------------------------------------------------ building
@@ -257,7 +260,7 @@ class Rig:
     def evaluate(self, curves) -> np.ndarray:
         """Vertices (F, V, 3) for control curves sampled to an (F, C) matrix (values past a
         control's limit are clamped)."""
-        c = np.clip(self.curves_from(curves), -self.limits, self.limits)
+        c = np.clip(self.curves_from(curves), self.limits[0], self.limits[1])
         out = self.deformer.apply_blendshapes(c)
         if self.rigid_parts:
             self._rigid_step(out, c)
@@ -318,7 +321,7 @@ class Rig:
         """Morph targets and weights for glTF: one target per control the curves use (or each of
         ``names``), scaled to the control's peak |value| so its weights lie in [-1, 1]. Linear
         controls are exact; rigid parts are linearised at the neutral pose."""
-        c = np.clip(self.curves_from(curves), -self.limits, self.limits)
+        c = np.clip(self.curves_from(curves), self.limits[0], self.limits[1])
         use = [self.index(n) for n in names] if names is not None else list(np.flatnonzero(np.abs(c).max(0) > 0))
         shapes, scales = {}, []
         for k in use:
@@ -336,4 +339,4 @@ class Rig:
         d = LinearDeformer(self.deformer.rest, w, self.deformer.rows,
                            [self.deformer.handle_names[i] for i in cols] if self.deformer.handle_names else None)
         parts = [p for p in self.rigid_parts if set(p.controls) <= set(names)]
-        return Rig(self.mesh, list(names), d, parts, self.limits[keep])
+        return Rig(self.mesh, list(names), d, parts, self.limits[:, keep])
