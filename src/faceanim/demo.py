@@ -18,9 +18,10 @@ import numpy as np
 
 from faceanim.deform.gde import GeometryDeformationElement as GDE
 from faceanim.drivers.keyframes import expression_tour
-from faceanim.face.default import default_face, default_landmarks
+from faceanim.face.default import default_landmarks
 from faceanim.face.face import Face
-from faceanim.io.gltf import write_gltf
+from faceanim.limits import DEFAULT_FPS
+from faceanim.player import frames_of, write_rig_gltf
 from faceanim.render import OffscreenRenderer, save_png, write_video
 from faceanim.rig.expressions import Expression, expression_rig
 from faceanim.rig.rig import Rig
@@ -54,37 +55,34 @@ def demo_expressions(lm) -> list[Expression]:
     return [smile, sadness, anger, mouth_a]
 
 
-def emotion_blendshapes(mesh, lm) -> dict[str, np.ndarray]:
-    """The six basic emotions on ``mesh`` from the built-in action-unit library, ``facs_<name>``."""
-    from faceanim.face.face import landmarks_478
+def emotion_blendshapes(face: Face) -> dict[str, np.ndarray]:
+    """The six basic emotions on a face from the built-in action-unit library, ``facs_<name>``."""
     from faceanim.rig.transfer import ExpressionTransfer, default_model
 
-    rig = ExpressionTransfer(Face(mesh, landmarks_478(mesh, lm))).rig(default_model(), sides=False)
+    rig = ExpressionTransfer(face).rig(default_model(), sides=False)
     return {f"facs_{name}": d for name, d in rig.blendshape_dict().items() if not name.startswith("AU")}
 
 
-def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = 30.0, size: int = 512,
+def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = DEFAULT_FPS, size: int = 512,
              quiet: bool = False) -> list[Path]:
     """Build the default face and its expressions; write demo.glb, demo.mp4 and PNGs to ``out_dir``."""
     from tqdm import tqdm
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    mesh = default_face()
-    lm = default_landmarks(mesh)
-    shapes = expression_rig(mesh, demo_expressions(lm)).blendshape_dict()
-    shapes.update(emotion_blendshapes(mesh, lm))
-    rig = Rig.from_blendshapes(mesh, shapes)
-    tour = expression_tour(rig.names)
-    times, weights = tour.sample(fps)
-    written = [write_gltf(out / "demo.glb", mesh, rig.blendshape_dict(), times, weights)]
+    face = Face.default()
+    shapes = expression_rig(face.mesh, demo_expressions(default_landmarks(face.mesh))).blendshape_dict()
+    shapes.update(emotion_blendshapes(face))
+    rig = Rig.from_blendshapes(face.mesh, shapes)
+    _, curves = expression_tour(rig.controls).sample(fps)
+    written = [write_rig_gltf(rig, curves, out / "demo.glb", fps, "expressions", names=rig.controls)]
 
     show = not quiet and sys.stderr.isatty()
-    with OffscreenRenderer(mesh, size=(size, size), yaw=15.0, pitch=4.0) as renderer:
+    with OffscreenRenderer(face.mesh, size=(size, size), yaw=15.0, pitch=4.0) as renderer:
         written.append(save_png(out / "neutral.png", renderer.render()))
-        for name in rig.names:
+        for name in rig.controls:
             written.append(save_png(out / f"{name}.png", renderer.render(rig.pose({name: 1.0}))))
-        frames = (renderer.render(v) for v in rig.evaluate(weights))
-        with tqdm(total=len(times), desc="rendering demo.mp4", unit="frame", disable=not show) as bar:
+        frames = (renderer.render(v) for v in frames_of(rig, curves))  # a few frames at a time
+        with tqdm(total=len(curves), desc="rendering demo.mp4", unit="frame", disable=not show) as bar:
             written.append(write_video(out / "demo.mp4", frames, fps=fps, progress=bar))
     return written

@@ -11,6 +11,7 @@ import math
 
 from faceanim.errors import FaceAnimError
 
+DEFAULT_FPS = 25.0  # the one default frame rate of every animation (MPEG-4's usual 25 fps)
 MAX_FPS = 240.0  # frames per second of any animation or video
 MIN_IMAGE_SIZE = 16  # pixels per side of a render
 MAX_IMAGE_SIZE = 4096

@@ -15,7 +15,6 @@ from pathlib import Path
 
 from faceanim.cli import facs, mesh, mpeg4, wires
 from faceanim.cli.common import (
-    DEFAULT_FPS,
     DEFAULT_SIZE,
     FPS,
     SIZE,
@@ -23,6 +22,7 @@ from faceanim.cli.common import (
     quiet_native_logs,
 )
 from faceanim.errors import FaceAnimError
+from faceanim.limits import DEFAULT_FPS
 
 
 class _Help(argparse.HelpFormatter):

@@ -21,7 +21,6 @@ from faceanim.limits import (
     check_range,
 )
 
-DEFAULT_FPS = 25.0  # one frame rate for every animation (MPEG-4's usual 25 fps)
 DEFAULT_SIZE = 512  # pixels per side of PNG and MP4 output
 
 
@@ -40,7 +39,12 @@ def _arg_type(name: str, low: float, high: float, integer: bool = False, low_inc
 
 
 FPS = _arg_type("--fps", 0.0, MAX_FPS, low_inclusive=False)
-SIZE = _arg_type("--size", MIN_IMAGE_SIZE, MAX_IMAGE_SIZE, integer=True)
+def SIZE(text: str) -> int:  # noqa: N802 - an argparse type, named like the others
+    """Pixels per side: a whole, even number (H.264 video needs even sizes) in range."""
+    size = _arg_type("--size", MIN_IMAGE_SIZE, MAX_IMAGE_SIZE, integer=True)(text)
+    if size % 2:
+        raise argparse.ArgumentTypeError(f"--size must be even (video needs even sizes), got {size}")
+    return size
 FRAMES = _arg_type("--frames", 2, MAX_FRAMES, integer=True)
 GRID = _arg_type("--grid", 8, MAX_GRID, integer=True)
 DURATION = _arg_type("--duration", 0.0, MAX_DURATION, low_inclusive=False)
@@ -80,7 +84,8 @@ def face_path(args, required: bool = False):
     if len(given) == 2 and given[0] != given[1]:
         raise CommandError(f"two faces given ('{given[0]}' and --face '{given[1]}'); give one")
     if not given and required:
-        raise CommandError("give the mesh (MESH or --face MESH)")
+        raise CommandError("give the face mesh (--face MESH" + (", or MESH first)" if hasattr(args, "face_positional")
+                                                                 else ")"))
     return given[0] if given else None
 
 

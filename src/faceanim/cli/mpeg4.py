@@ -7,7 +7,6 @@ import tempfile
 from pathlib import Path
 
 from faceanim.cli.common import (
-    DEFAULT_FPS,
     DEFAULT_SIZE,
     DURATION,
     FPS,
@@ -20,6 +19,7 @@ from faceanim.cli.common import (
     load_face,
     progress,
 )
+from faceanim.limits import DEFAULT_FPS
 
 
 def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:

@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.cli.common import (
-    DEFAULT_FPS,
     DEFAULT_SIZE,
     FPS,
     FRAMES,
@@ -21,6 +20,7 @@ from faceanim.cli.common import (
     report,
     write_pose,
 )
+from faceanim.limits import DEFAULT_FPS
 
 
 def _cmd_extract(args) -> None:

@@ -34,6 +34,7 @@ from faceanim.face.landmarks import SLITS
 from faceanim.face.mesh import Mesh
 from faceanim.face.regions import past_corners, smoothstep
 from faceanim.io.files import read_json, write_json
+from faceanim.limits import check_frames
 from faceanim.rig.rig import Rig
 
 MAX_WIRES = 200  # wires in one template file
@@ -384,7 +385,7 @@ def blend_chain(base: Mesh, lm478: np.ndarray, templates: list[WireTemplate], fu
                 shapes[g if len(templates) == 2 else f"{g}@{i + 1}"] = d
                 columns.append((i, curves_of[g]))
     n_seg = len(templates) - 1
-    ts = np.linspace(0.0, float(n_seg), frames * n_seg)
+    ts = np.linspace(0.0, float(n_seg), check_frames(frames * n_seg, "frames of the blend chain"))
     curves = np.zeros((len(ts), len(columns)))
     for c, (seg_i, curve) in enumerate(columns):
         curves[:, c] = 1.0 if seg_i is None else curve(np.clip(ts - seg_i, 0.0, 1.0))
