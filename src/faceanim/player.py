@@ -15,7 +15,6 @@ import numpy as np
 from faceanim.deform.wires import Curve
 from faceanim.drivers.mpeg4 import FapStream
 from faceanim.errors import FaceAnimError
-from faceanim.face.landmarks import FACE_OVAL
 from faceanim.face.mesh import Mesh
 from faceanim.io.gltf import write_gltf
 from faceanim.render import OffscreenRenderer, write_video
@@ -26,23 +25,18 @@ from faceanim.rig.wires import WireSet
 CHUNK = 64  # frames evaluated at once while rendering (bounded memory for long clips)
 
 
-def face_view(lm478) -> dict:
-    """Render framing on the face: the landmark face oval with a margin (full heads render small
-    otherwise)."""
-    return {"frame_vertices": np.asarray(lm478)[list(FACE_OVAL)], "margin": 1.3}
-
-
 def frames_of(rig: Rig, curves: np.ndarray, chunk: int = CHUNK) -> Iterator[np.ndarray]:
     """Vertices frame by frame, evaluated ``chunk`` frames at a time."""
     for a in range(0, len(curves), chunk):
         yield from rig.evaluate(curves[a:a + chunk])
 
 
-def render_curves(rig: Rig, curves: np.ndarray, path, fps: float, lm478=None, size: int = 512, audio=None,
-                  progress=None, yaw: float = 8.0, pitch: float = 3.0) -> Path:
-    """Render a rig driven by (F, C) curves to an MP4 (with the WAV ``audio`` as its sound)."""
-    view = face_view(lm478) if lm478 is not None else {}
-    with OffscreenRenderer(rig.mesh, size=(size, size), yaw=yaw, pitch=pitch, **view) as r:
+def render_curves(rig: Rig, curves: np.ndarray, path, fps: float, view: dict | None = None, size: int = 512,
+                  audio=None, progress=None) -> Path:
+    """Render a rig driven by (F, C) curves to an MP4 (with the sound file ``audio``). ``view``:
+    the camera (:meth:`Face.view <faceanim.face.face.Face.view>`: framed on the face oval, turned a
+    little); without it the whole mesh, straight on."""
+    with OffscreenRenderer(rig.mesh, size=(size, size), **(view or {})) as r:
         frames = (r.render(v) for v in frames_of(rig, curves))
         return write_video(path, frames, fps=fps, audio=audio, progress=progress)
 
@@ -60,9 +54,10 @@ def write_rig_gltf(rig: Rig, curves: np.ndarray, path, fps: float, name: str = "
     return write_gltf(path, rig.mesh, shapes, times=times, weights=weights, animation_name=name, **options)
 
 
-def render_stream(rig: FapRig, stream: FapStream, path, lm478, size: int = 512, audio=None, progress=None) -> Path:
-    """Render a FAP stream on the rig's face to an MP4 (with the WAV ``audio`` as its sound)."""
-    return render_curves(rig, rig.stream_curves(stream), path, stream.fps, lm478, size, audio, progress)
+def render_stream(rig: FapRig, stream: FapStream, path, view: dict | None = None, size: int = 512, audio=None,
+                  progress=None) -> Path:
+    """Render a FAP stream on the rig's face to an MP4 (with the sound file ``audio``)."""
+    return render_curves(rig, rig.stream_curves(stream), path, stream.fps, view, size, audio, progress)
 
 
 def gltf_stream(rig: FapRig, stream: FapStream, path, **options) -> Path:

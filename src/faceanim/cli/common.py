@@ -129,8 +129,7 @@ def write_pose(args, face, shapes: dict[str, np.ndarray], pose: str, weight: flo
     out = Path(args.output)
     suffix = out.suffix.lower()
     if suffix == ".png":
-        render_png(face.mesh, out, vertices=rig.pose({pose: weight}), size=(args.size, args.size), yaw=12,
-                   pitch=3, **face.view())
+        render_png(face.mesh, out, vertices=rig.pose({pose: weight}), size=(args.size, args.size), **face.view())
         return [out]
     if suffix == ".glb":
         curves = np.zeros((3, rig.n_controls))

@@ -47,7 +47,7 @@ def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
             glb.unlink(missing_ok=True)  # no half of the pair left behind
             raise
     with progress(stream.n_frames, f"rendering {out.name}", args.quiet) as bar:
-        return [render_stream(rig, stream, out, face.landmarks, size=args.size, audio=audio, progress=bar)]
+        return [render_stream(rig, stream, out, face.view(), size=args.size, audio=audio, progress=bar)]
 
 
 def _cmd_say(args) -> None:

@@ -78,8 +78,7 @@ def _cmd_blend(args) -> None:
         write_rig_gltf(rig, curves, args.output, args.fps, "blend", names=rig.controls)
     else:
         with progress(len(curves), "rendering", args.quiet) as bar:
-            render_curves(rig, curves, args.output, args.fps, face.landmarks, args.size, progress=bar,
-                          yaw=12, pitch=3)
+            render_curves(rig, curves, args.output, args.fps, face.view(), args.size, progress=bar)
     n_seg = len(templates) - 1
     print(f"wrote {args.output} ({len(curves)} frames, {n_seg} blend{'s' if n_seg > 1 else ''})")
 
