@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.deform.wires import Curve
-from faceanim.drivers.mpeg4 import FapStream
 from faceanim.errors import FaceAnimError
+from faceanim.face.faps import FapStream, faps
 from faceanim.face.mesh import Mesh
 from faceanim.io.gltf import write_gltf
 from faceanim.render import OffscreenRenderer, write_video
@@ -65,7 +65,7 @@ def gltf_stream(rig: FapRig, stream: FapStream, path, **options) -> Path:
     can show, named by the FAP (``open_jaw``), weighted by its values scaled to [-1, 1]."""
     curves = rig.stream_curves(stream)
     used = [rig.controls[k] for k in np.flatnonzero(np.abs(curves).max(0) > 0)
-            if rig.supported[k] and k >= 2]
+            if rig.supported[k] and not faps()[k].is_high_level]
     if not used:
         raise FaceAnimError("the stream sets no FAP this face can show")
     return write_rig_gltf(rig, curves, path, stream.fps, stream.name or "faps", names=used, **options)

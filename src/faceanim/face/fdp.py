@@ -22,6 +22,7 @@ import numpy as np
 from faceanim.errors import LandmarkError
 from faceanim.face.faps import ANGLE_UNIT
 from faceanim.face.frame import FaceFrame, face_frame
+from faceanim.face.landmarks import CHEEK_EXTREMES
 from faceanim.face.mesh import Mesh
 from faceanim.face.regions import skin
 
@@ -58,6 +59,10 @@ class FeaturePoints:
         return self.fapu[key] / 1024.0
 
 
+# 7.1 (the top of the spine, the head's pivot) is estimated: this many inter-ocular distances behind
+# and below the midpoint of the face's widest points (in front of the ears)
+SPINE_BEHIND, SPINE_BELOW = 0.6, 0.9
+
 def feature_points(mesh: Mesh, lm478: np.ndarray) -> FeaturePoints:
     """Place the MPEG-4 feature points on ``mesh`` and measure its FAPU (neutral face assumed)."""
     spec = fdp_spec()
@@ -72,8 +77,8 @@ def feature_points(mesh: Mesh, lm478: np.ndarray) -> FeaturePoints:
     for n in ("3.5", "3.6"):
         positions[n] = target[names.index(n)]
     # 7.1, the top of the spine: behind the face's outline, below the eyes (an estimate)
-    centre = (lm[234] + lm[454]) / 2
-    positions["7.1"] = centre - frame.rotation[2] * 0.6 * frame.iod - frame.rotation[1] * 0.9 * frame.iod
+    centre = lm[list(CHEEK_EXTREMES)].mean(0)
+    positions["7.1"] = centre - frame.rotation[2] * SPINE_BEHIND * frame.iod - frame.rotation[1] * SPINE_BELOW * frame.iod
     missing = dict(spec["not_from_landmarks"])
     loc = {n: frame.to_local(p) for n, p in positions.items()}
     fapu = {

@@ -16,12 +16,16 @@ from faceanim.face.landmarks import (
     FACE_OVAL,
     INNER_LIPS,
     LIP_OUTER,
+    NOSE_TIP,
     SLITS,
 )
 from faceanim.face.mesh import Mesh
 
 # inter-ocular distances of skin around the face outline that expressions may still move
 FREE_MARGIN = 0.35  # inter-ocular distances an expression may spread beyond the visible face
+# landmarks inside the oval that lie on the skin shell (nose tip, lip middles, brows): with the
+# oval they pick the shell that carries most landmarks
+SKIN_MARKERS = (NOSE_TIP, 0, 17, 70, 300)  # nose tip, upper and lower lip middle, right and left brow
 JAW_DROP = 0.9  # inter-ocular distances below the chin an expression may still move (the throat)
 CAVITY_DEPTH = 0.3  # deeper than this behind the front surface: mouth cavity, inside of the cheeks
 
@@ -29,7 +33,7 @@ CAVITY_DEPTH = 0.3  # deeper than this behind the front surface: mouth cavity, i
 def skin(mesh: Mesh, lm478: np.ndarray) -> np.ndarray:
     """Vertices of the face's skin shell: the connected part that carries most landmarks, so
     eyeballs, teeth, gums and tongue modelled as separate shells of one mesh are left out."""
-    _, near = mesh.kdtree.query(np.asarray(lm478)[list(FACE_OVAL) + [4, 0, 17, 70, 300]])
+    _, near = mesh.kdtree.query(np.asarray(lm478)[list(FACE_OVAL) + list(SKIN_MARKERS)])
     labels = mesh.vertex_components
     main = np.bincount(labels[near]).argmax()
     return labels == main

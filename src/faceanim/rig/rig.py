@@ -29,6 +29,9 @@ from faceanim.deform.base import LinearDeformer
 from faceanim.errors import DeformError
 from faceanim.face.mesh import Mesh
 
+HINGE_NEWTON_STEPS = 8  # from drop / z, Newton converges to machine precision in 4-5 steps for |a| < 1
+HINGE_MAX_ANGLE = np.pi / 3  # a jaw opens at most 60 degrees
+
 
 def axis_rotation(axis: int, angle) -> np.ndarray:
     """Rotation matrices (..., 3, 3) by ``angle`` radians about the x (0), y (1) or z (2) axis."""
@@ -99,10 +102,10 @@ class RigidPart:
         y (1 - cos a) + z sin a = drop, by Newton's method from drop / z."""
         y, z = float(self.hinge[1]), max(float(self.hinge[2]), 1e-12)
         a = np.asarray(drop, dtype=np.float64) / z
-        for _ in range(8):
+        for _ in range(HINGE_NEWTON_STEPS):
             f = y * (1 - np.cos(a)) + z * np.sin(a) - drop
             a = a - f / (y * np.sin(a) + z * np.cos(a))
-        return np.clip(a, -np.pi / 3, np.pi / 3)
+        return np.clip(a, -HINGE_MAX_ANGLE, HINGE_MAX_ANGLE)
 
     def transforms(self, values: Mapping[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray]:
         """Per-frame rotations (n, 3, 3) in the part's frame and shifts (n, 3) in mesh units."""

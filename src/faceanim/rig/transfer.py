@@ -49,6 +49,7 @@ from faceanim.rig.rig import Rig
 METHODS = ("surface", "tps")
 
 
+SUBNASALE = 2  # MediaPipe point below the nose: the skull is what lies above it
 CUTOFF = 1e-4  # blendshape displacements below this many inter-ocular distances are zero
 
 
@@ -56,7 +57,7 @@ def skull_vertices(mesh: Mesh, lm478: np.ndarray, frame: FaceFrame) -> np.ndarra
     """Vertices for rigid alignment of two scans: the skull above the mouth, outside the
     region expressions move (none on a face mask: then stable landmarks are used)."""
     free = free_region(mesh, lm478, frame)
-    above = frame.to_local(mesh.vertices)[:, 1] > frame.to_local(np.asarray(lm478)[2])[1]
+    above = frame.to_local(mesh.vertices)[:, 1] > frame.to_local(np.asarray(lm478)[SUBNASALE])[1]
     out = np.flatnonzero(~free & above)
     return out if len(out) >= 50 else np.zeros(0, dtype=np.int64)
 

@@ -2,7 +2,7 @@
 
 Each phone becomes a viseme action covering the phone and spreading into its neighbours by its
 group's overlap (vowels spread most, plosives least), with the group's intensity and weight: the
-weighted blending of :mod:`faceanim.mpeg4.actions` then mixes neighbouring mouth shapes, and a
+weighted blending of :mod:`faceanim.drivers.mpeg4` then mixes neighbouring mouth shapes, and a
 plosive's heavy weight closes the lips even inside an expression that opens the mouth.
 """
 
@@ -13,8 +13,13 @@ import numpy as np
 from faceanim.drivers.mpeg4 import Action, blend_actions, fap_set, viseme_table
 from faceanim.drivers.speech.phonemes import Phone
 from faceanim.errors import FaceAnimError
-from faceanim.face.faps import FapError, FapStream
+from faceanim.face.faps import FapError, FapStream, fap
 from faceanim.limits import check_frames
+
+# a p/b/m closes a face whose neutral lips are parted: the mid-lips each move half the gap (in
+# MNS), the lip points beside them a little less so the closed lips stay round
+LIP_CLOSURE = {"lower_t_midlip": 0.5, "raise_b_midlip": 0.5, "lower_t_lip_lm": 0.4, "lower_t_lip_rm": 0.4,
+               "raise_b_lip_lm": 0.4, "raise_b_lip_rm": 0.4}
 
 
 def _phone_map() -> dict[str, int]:
@@ -38,7 +43,7 @@ def viseme_actions(phones: list[Phone], lip_gap: float = 0.0, intensity: float =
     """Co-articulated viseme actions for timed phones.
 
     ``lip_gap`` is the neutral face's gap between the inner lips in MNS units (from
-    :class:`~faceanim.mpeg4.deformation.FapRig`): visemes marked ``close_lips`` close it.
+    :class:`~faceanim.rig.mpeg4.FapRig`): visemes marked ``close_lips`` close it.
     """
     table = viseme_table()
     groups = table["groups"]
@@ -53,10 +58,9 @@ def viseme_actions(phones: list[Phone], lip_gap: float = 0.0, intensity: float =
         spread = g["overlap"] * length
         faps = fap_set(d["faps"])
         if d.get("close_lips") and lip_gap:
-            for n in (4, 5):  # lower_t_midlip, raise_b_midlip: half the gap each
-                faps[n] = faps.get(n, 0.0) + 0.5 * lip_gap
-            for n in (8, 9, 10, 11):
-                faps[n] = faps.get(n, 0.0) + 0.4 * lip_gap
+            for name, share in LIP_CLOSURE.items():
+                n = fap(name).number
+                faps[n] = faps.get(n, 0.0) + share * lip_gap
         # the action rises over [start - spread, start + spread] and falls over [end - spread,
         # end + spread]: neighbours with equal spreads hand over exactly at the phone boundary
         duration = length + 2 * spread
