@@ -38,7 +38,14 @@ def test_au_matches_the_library(tmp_path, face_files, base_face):
     want = base_face.vertices + xf.action_unit_delta(default_model(), 12, 0.5)
     np.testing.assert_allclose(got.vertices, want, atol=1e-7)
     assert got.n_vertices == base_face.n_vertices and got.texture is not None
-    assert np.abs(got.vertices - base_face.vertices).max() > 1e-3  # the corners really moved
+    # independent of the library: AU12 (lip corner puller) raises and widens the mouth corners and
+    # leaves the brows and forehead where they were
+    d, iod = got.vertices - base_face.vertices, np.linalg.norm(base_face.vertices[263] - base_face.vertices[33])
+    up = xf.frame.rotation[1]
+    assert d[61] @ up > 0.01 * iod and d[291] @ up > 0.01 * iod
+    right_left = base_face.vertices[291] - base_face.vertices[61]
+    assert (d[291] - d[61]) @ right_left > 0
+    assert np.abs(d[[10, 105, 334]]).max() < 1e-3 * iod  # forehead top, brows
 
 
 def test_emotion_glb_carries_named_morph_targets(tmp_path, face_files):
@@ -47,8 +54,20 @@ def test_emotion_glb_carries_named_morph_targets(tmp_path, face_files):
     mesh, lm = face_files
     out = tmp_path / "joy.glb"
     assert _run(["au", mesh, "--emotion", "joy", "--landmarks", lm, "-o", out]) == 0
-    names = pygltflib.GLTF2().load(str(out)).meshes[0].extras["targetNames"]
+    gltf = pygltflib.GLTF2().load(str(out))
+    names = gltf.meshes[0].extras["targetNames"]
     assert {"pose", "AU12", "AU6", "joy", "sadness", "surprise", "fear", "anger", "disgust"} <= set(names)
+    # the 'pose' target is joy, and joy is the sum of its action units at their FACS intensities
+    prim = gltf.meshes[0].primitives[0]
+    target = {n: accessor(gltf, prim.targets[k]["POSITION"]) for k, n in enumerate(names)}
+    np.testing.assert_allclose(target["pose"], target["joy"], atol=2e-6)
+    from faceanim.rig.facs import default_library
+
+    mix = default_library().emotion("joy")
+    np.testing.assert_allclose(target["joy"], sum(w * target[f"AU{au}"] for au, w in mix.items()), atol=2e-5)
+    # the animation takes 'pose' from 0 to 1 and back
+    weights = accessor(gltf, gltf.animations[0].samplers[0].output).reshape(3, len(names))
+    assert weights[:, names.index("pose")].tolist() == [0.0, 1.0, 0.0]
 
 
 @pytest.mark.parametrize("extra, message", [

@@ -187,3 +187,19 @@ def test_eyeballs_turn_on_a_head_that_has_them(fap_rig):
     front = before[:, 2].argmax()  # the front of the eye (the cornea) turns by 0.2 rad about y
     turn = np.arctan2(after[front, 0], after[front, 2]) - np.arctan2(before[front, 0], before[front, 2])
     assert turn == pytest.approx(0.2, abs=1e-6)
+
+
+def test_glb_linearisation_of_the_jaw_and_head_is_their_exact_derivative(fap_rig, face):
+    """What a glTF morph target stores for open_jaw, thrust_jaw, the head turns: the derivative of
+    the true (rotating) motion at the neutral pose, against central finite differences."""
+    for name, h in (("open_jaw", 1e-3), ("thrust_jaw", 1e-3), ("shift_jaw", 1e-3), ("head_pitch", 1e-2),
+                    ("head_yaw", 1e-2), ("head_roll", 1e-2), ("raise_b_midlip", 1e-3)):
+        from faceanim.face.faps import fap
+
+        one_sided = fap(name).bidirectional is False  # cannot go negative (open_jaw, thrust_jaw)
+        fd = fap_rig.pose({name: h}) - fap_rig.pose({name: 0.0 if one_sided else -h})
+        fd /= h if one_sided else 2 * h
+        lin = fap_rig.linearised(name)
+        scale = np.abs(lin).max()
+        assert scale > 0, name
+        np.testing.assert_allclose(lin, fd, atol=2e-3 * scale, err_msg=name)
