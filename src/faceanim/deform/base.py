@@ -43,6 +43,18 @@ _FRAME_BLOCK = 64
 _THREADS = max(1, min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
 
 
+def _over_frames(n: int, run) -> None:
+    """``run(lo, hi)`` over frames 0..n, split over threads for long batches (scipy's sparse
+    kernels and numpy's ufuncs release the GIL)."""
+    workers = min(_THREADS, max(1, n // _FRAME_BLOCK))
+    if workers == 1:
+        run(0, n)
+        return
+    cuts = np.linspace(0, n, workers + 1).astype(int)
+    with ThreadPoolExecutor(workers) as pool:
+        list(pool.map(run, cuts[:-1], cuts[1:]))
+
+
 class LinearDeformer:
     """A deformer bound to a rest pose: ``apply(offsets)`` returns deformed vertex positions.
 
@@ -216,14 +228,7 @@ class LinearDeformer:
                     if negzero.size:
                         out[f].reshape(-1)[negzero] = -0.0
 
-            n = frames.shape[0]
-            workers = min(_THREADS, max(1, n // _FRAME_BLOCK))
-            if workers == 1:
-                run(0, n)
-            else:
-                cuts = np.linspace(0, n, workers + 1).astype(int)
-                with ThreadPoolExecutor(workers) as pool:
-                    list(pool.map(run, cuts[:-1], cuts[1:]))
+            _over_frames(frames.shape[0], run)
         elif rows is None:
             # dense: per coordinate, (frames, H) @ (H, V) with contiguous operands for BLAS
             wt = w.T
@@ -266,14 +271,7 @@ class LinearDeformer:
                 for f in range(lo, hi):
                     np.add(rest, op @ c[f], out=out[f])
 
-            n = c.shape[0]
-            workers = min(_THREADS, max(1, n // _FRAME_BLOCK))
-            if workers == 1:
-                run(0, n)
-            else:
-                cuts = np.linspace(0, n, workers + 1).astype(int)
-                with ThreadPoolExecutor(workers) as pool:
-                    list(pool.map(run, cuts[:-1], cuts[1:]))
+            _over_frames(c.shape[0], run)
         else:
             np.matmul(c, op, out=out)  # no temporary the size of the output
             out += rest
