@@ -22,14 +22,11 @@ from faceanim.cli.common import (
 
 
 def _cmd_landmarks(args) -> None:
-    from faceanim.face.default import default_face
     from faceanim.face.landmarks import Landmarks, detect_landmarks
-    from faceanim.io.meshio import load_mesh
     from faceanim.render import save_png
 
     check_outputs(args.output, args.image)
-    path = face_path(args)
-    mesh = default_face() if path in (None, "default") else load_mesh(path)
+    mesh = load_face_mesh(args)
     if args.given:
         lms, image = Landmarks.load(args.given).attached_to(mesh), None
     else:
@@ -45,12 +42,10 @@ def _cmd_landmarks(args) -> None:
 
 def _cmd_deform(args) -> None:
     from faceanim.deform.handles import load_handles
-    from faceanim.face.default import default_face
-    from faceanim.io.meshio import load_mesh, save_mesh
+    from faceanim.io.meshio import save_mesh
 
     check_outputs(args.output, args.image)
-    path = face_path(args)
-    mesh = default_face() if path in (None, "default") else load_mesh(path)
+    mesh = load_face_mesh(args)
     deformer, offsets = load_handles(args.handles, mesh, args.forward, args.up)
     deformed = deformer.apply(offsets)
     written = save_mesh(mesh, args.output, deformed, avoid=named_paths(args))
@@ -63,13 +58,10 @@ def _cmd_deform(args) -> None:
 
 
 def _cmd_render(args) -> None:
-    from faceanim.face.default import default_face
-    from faceanim.io.meshio import load_mesh
     from faceanim.render import render_png
 
     check_outputs(args.output)
-    path = face_path(args)
-    mesh = default_face() if path in (None, "default") else load_mesh(path)
+    mesh = load_face_mesh(args)
     report([render_png(mesh, args.output, size=(args.size, args.size), yaw=args.yaw, pitch=args.pitch)])
 
 
@@ -95,6 +87,15 @@ def _cmd_preprocess(args) -> None:
         {"index": i, "position": [float(x) for x in p]} for i, p in enumerate(grid.landmarks)]})
     print(f"wrote {', '.join(map(str, written))} ({grid.mesh.n_vertices} grid vertices of {args.grid}x{args.grid}) "
           f"and {lm_path}")
+
+
+def load_face_mesh(args):
+    """The mesh alone (no landmarks needed): the file named, or the embedded default face."""
+    from faceanim.face.default import default_face
+    from faceanim.io.meshio import load_mesh
+
+    path = face_path(args)
+    return default_face() if path in (None, "default") else load_mesh(path)
 
 
 def _axes(p) -> None:
