@@ -23,3 +23,11 @@ class LandmarkError(FaceAnimError):
 
 class InputFileError(FaceAnimError):
     """A JSON or other input file is missing or malformed."""
+
+
+def shown(value, limit: int = 40) -> str:
+    """A user-given name or token as it may appear in a one-line message: printable characters
+    only (a terminal escape code in a file cannot reach the user's terminal), at most ``limit``
+    long."""
+    s = "".join(c if c.isprintable() else "?" for c in str(value))
+    return s if len(s) <= limit else s[:limit - 3] + "..."

@@ -229,6 +229,10 @@ class AverageFace:
         if lm.shape != (478, 3) or not np.all(np.isfinite(lm)) or not np.all(np.isfinite(x)) \
                 or not np.all(np.isfinite(y)) or np.isinf(depth).any():
             raise InputFileError(f"{what} (landmarks must be 478 finite points; x, y finite; depth finite or NaN)")
+        try:
+            face_frame(lm)  # the landmarks must be a face's (proportions, not mirrored)
+        except LandmarkError as exc:
+            raise InputFileError(f"{what} (its landmarks are not a face's: {exc})") from None
         return cls(x.astype(np.float64), y.astype(np.float64), depth.astype(np.float64), lm.astype(np.float64), sources)
 
 

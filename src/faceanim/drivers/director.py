@@ -73,6 +73,7 @@ from faceanim.drivers.mpeg4 import (
     viseme_table,
 )
 from faceanim.errors import InputFileError
+from faceanim.errors import shown as _shown
 from faceanim.face.faps import FapError
 from faceanim.limits import (
     MAX_ACTIONS,
@@ -206,10 +207,6 @@ class Script:
 # ----------------------------------------------------------------------------------- lines
 
 
-def _shown(value, limit: int = 40) -> str:
-    """A user-given key or name as it may appear in a one-line message."""
-    s = "".join(c if c.isprintable() else "?" for c in str(value))
-    return s if len(s) <= limit else s[:limit - 3] + "..."
 
 
 def _where(loc) -> str:
@@ -339,6 +336,8 @@ def _parse(text: str, source: str, is_json: bool) -> tuple[Any, _Lines]:
             raise ScriptError(f"{source}, line {exc.lineno}: not valid JSON ({exc.msg}, column {exc.colno})") from None
         except RecursionError:
             raise ScriptError(f"{source}: the JSON is nested too deeply for a scene script") from None
+        except ValueError:  # a number too long for Python's int conversion (thousands of digits)
+            raise ScriptError(f"{source}: a number in the JSON is absurdly long; give ordinary numbers") from None
         try:  # JSON is YAML's flow style: compose it for the lines of keys (tabs are JSON whitespace)
             lines = _Lines(yaml.compose(text.replace("\t", " "), Loader=_yaml_loader()))
         except (yaml.YAMLError, RecursionError):

@@ -13,16 +13,14 @@ of a frontal image.
 
 from __future__ import annotations
 
-import contextlib
 import os
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from faceanim.errors import LandmarkError
-from faceanim.io.files import read_json, write_json
+from faceanim.errors import LandmarkError, shown
+from faceanim.io.files import native_stderr_quiet, read_json, write_json
 
 # the basic 22-point set used by later modules (name, MediaPipe index)
 BASIC22 = (
@@ -78,7 +76,7 @@ class Landmarks:
         try:
             return self.positions[self.names.index(name)]
         except ValueError:
-            raise LandmarkError(f"no landmark named '{name}' in scheme '{self.scheme}'") from None
+            raise LandmarkError(f"no landmark named '{shown(name)}' in scheme '{self.scheme}'") from None
 
     def subset(self, scheme: str) -> Landmarks:
         """The landmarks of another (smaller) scheme, e.g. ``basic22`` out of ``mediapipe478``."""
@@ -259,7 +257,7 @@ def _landmarks_from_dict(cls, d: object, source: str) -> Landmarks:
             raise LandmarkError(f"{where}: 'name' must be text, got {_kind(name)}")
         name = name or MEDIAPIPE_NAMES.get(i, f"point{k}")
         if name in seen_name:
-            raise LandmarkError(f"{where}: name '{name[:40]}' repeats point {seen_name[name]}; each landmark once")
+            raise LandmarkError(f"{where}: name '{shown(name)}' repeats point {seen_name[name]}; each landmark once")
         seen_name[name] = k
         t = _whole(p["triangle"], where, "triangle", -1, 2**62) if "triangle" in p else -1
         if "barycentric" in p:
@@ -275,25 +273,6 @@ def _landmarks_from_dict(cls, d: object, source: str) -> Landmarks:
         bary.append(b)
     return cls(scheme, names, np.array(idx, dtype=np.int64), np.array(pos), np.array(tri, dtype=np.int64),
                np.array(bary, dtype=np.float64), detected_on)
-
-
-@contextlib.contextmanager
-def _native_stderr_quiet():
-    """MediaPipe's C++ code logs to file descriptor 2 whatever GLOG/TF variables say; send that to
-    /dev/null while it runs, unless FACEANIM_VERBOSE is set (``faceanim --verbose``)."""
-    if os.environ.get("FACEANIM_VERBOSE"):
-        yield
-        return
-    sys.stderr.flush()
-    saved = os.dup(2)
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, 2)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-        os.close(devnull)
 
 
 # detection runs MediaPipe on the render at these scales (about the centre) and keeps the median of
@@ -338,7 +317,7 @@ def detect_landmarks_in_image(rgb: np.ndarray, scales=DETECTION_SCALES) -> np.nd
         raise LandmarkError("landmark detection needs mediapipe==0.10.21 (pip install mediapipe==0.10.21)") from None
     h, w = img.shape[:2]
     found = []
-    with _native_stderr_quiet(), mp.solutions.face_mesh.FaceMesh(
+    with native_stderr_quiet(), mp.solutions.face_mesh.FaceMesh(
             static_image_mode=True, max_num_faces=1, refine_landmarks=True, min_detection_confidence=0.3) as fm:
         for s in scales:
             view, dx, dy = (img, 0, 0) if s == 1 else _zoom(img, s)

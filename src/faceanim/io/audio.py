@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.errors import InputFileError
-from faceanim.io.files import atomic_output
+from faceanim.io.files import atomic_output, native_stderr_quiet
 from faceanim.limits import MAX_DURATION, MAX_SAMPLE_RATE
 
 log = logging.getLogger(__name__)
@@ -65,7 +65,8 @@ def read_audio(path: str | os.PathLike, what: str = "audio file") -> tuple[np.nd
     truncated = (f"{what} '{p}' is truncated or damaged (its header promises more audio than the file "
                  "holds, or its data does not decode); record or copy it again")
     try:
-        info = sf.info(str(p))
+        with native_stderr_quiet():  # libsndfile's decoders (mpg123) print their own warnings
+            info = sf.info(str(p))
     except (RuntimeError, ValueError, TypeError, OSError) as exc:
         log.debug("libsndfile cannot open %s: %s", p, exc)
         code = getattr(exc, "code", None)  # libsndfile's SF_ERR_*: 2 system, 3 malformed, 4 encoding
@@ -94,7 +95,7 @@ def read_audio(path: str | os.PathLike, what: str = "audio file") -> tuple[np.nd
     n = 0
     block = max(1, _BLOCK_SAMPLES // channels)
     try:
-        with sf.SoundFile(str(p)) as f:
+        with native_stderr_quiet(), sf.SoundFile(str(p)) as f:
             while n < frames:
                 chunk = f.read(min(block, frames - n), dtype="float32", always_2d=True)
                 if len(chunk) == 0:

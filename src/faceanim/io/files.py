@@ -27,6 +27,7 @@ import os
 import re
 import signal
 import stat
+import sys
 import tempfile
 import threading
 from collections.abc import Iterator
@@ -305,3 +306,23 @@ def read_text(path: str | os.PathLike, what: str = "text file") -> str:
         raise InputFileError(f"{what} '{path}' is not UTF-8 text; save it as UTF-8") from None
     except OSError as exc:
         raise InputFileError(f"cannot read {what} '{path}': {_reason(exc)}") from None
+
+
+@contextlib.contextmanager
+def native_stderr_quiet():
+    """Native libraries (MediaPipe's C++, libsndfile's mpg123) log to file descriptor 2 whatever
+    Python says; send that to /dev/null while they run, unless FACEANIM_VERBOSE is set
+    (``faceanim --verbose``), so an error stays one line."""
+    if os.environ.get("FACEANIM_VERBOSE"):
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)

@@ -307,7 +307,7 @@ def glb_json(path: str | os.PathLike, limit: int = 64 << 20) -> dict | None:
                 return None
             doc = json.loads(fh.read(length))
         return doc if isinstance(doc, dict) else None
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return None
 
 

@@ -21,6 +21,7 @@ its ``.mtl``, which carries faceanim's mark for that OBJ) are replaced in place.
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import re
@@ -49,6 +50,8 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     if not path.is_file():
         if path.is_dir():
             raise MeshError(f"mesh '{path}' is a folder; give a mesh file (.obj, .ply, .glb, .gltf)")
+        if path.exists():
+            raise MeshError(f"mesh '{path}' is not a regular file (a device, pipe or socket); give a mesh file")
         raise MeshError(f"mesh file '{path}' does not exist; check the path")
     suffix = path.suffix.lower()
     if suffix not in MESH_SUFFIXES:
@@ -66,6 +69,10 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
         i = int(np.flatnonzero(big.any(1))[0])
         raise MeshError(f"mesh '{path}' has an absurd coordinate (beyond {MAX_COORDINATE:g}) at vertex index {i}; "
                         "repair or re-export the mesh")
+    a, b, c = (mesh.vertices[mesh.faces[:, k]] for k in range(3))
+    if not np.any(np.linalg.norm(np.cross(b - a, c - a), axis=1) > 0):
+        raise MeshError(f"mesh '{path}' has no area: every triangle is degenerate (repeated or collinear corners); "
+                        "give a surface mesh")
     return mesh
 
 
@@ -291,20 +298,52 @@ def _check_ply_header(path: Path) -> None:
         raise MeshError(f"mesh '{path}' is truncated: its PLY header promises more elements than the file holds")
 
 
+def _check_gltf(path: Path) -> None:
+    """What trimesh would read without asking: a GLB whose header disagrees with the file's size,
+    JSON nested too deep, quantized data it misreads, and files referenced outside the glTF's
+    folder (``uri: /etc/passwd``); all refused before it reads anything."""
+    damaged = MeshError(f"mesh '{path}' is not a valid {path.suffix[1:].upper()} file (damaged header or JSON); "
+                        "export it again")
+    try:
+        if path.suffix.lower() == ".glb":
+            with open(path, "rb") as fh:
+                head = fh.read(12)
+            if len(head) < 12 or head[:4] != b"glTF" or int.from_bytes(head[8:12], "little") != path.stat().st_size:
+                raise damaged
+            from faceanim.io.gltf import glb_json
+
+            doc = glb_json(path)
+        else:
+            if path.stat().st_size > 64 << 20:
+                raise MeshError(f"mesh '{path}' has more than 64 MB of glTF JSON; give a .glb")
+            doc = json.loads(path.read_text(encoding="utf-8"))
+    except (RecursionError, ValueError, UnicodeDecodeError):
+        raise damaged from None
+    if not isinstance(doc, dict):
+        raise damaged
+    if "KHR_mesh_quantization" in (doc.get("extensionsRequired") or []):
+        raise MeshError(f"mesh '{path}' is quantized (KHR_mesh_quantization, e.g. written with --compact); "
+                        "faceanim reads plain glTF: give the file written without --compact")
+    folder = path.resolve().parent
+    for key in ("buffers", "images"):
+        for item in doc.get(key) or []:
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if not isinstance(uri, str) or uri.startswith("data:"):
+                continue
+            target = (folder / uri).resolve()
+            if "://" in uri or target.parent != folder and folder not in target.parents:
+                raise MeshError(f"mesh '{path}' refers to a file outside its folder ({key}); faceanim reads only "
+                                "files beside a glTF")
+
+
 def _load_with_trimesh(path: Path) -> Mesh:
     import trimesh
     from PIL import Image
 
     if path.suffix.lower() == ".ply":
         _check_ply_header(path)
-    if path.suffix.lower() == ".glb":
-        from faceanim.io.gltf import glb_json
-
-        doc = glb_json(path) or {}
-        required = doc.get("extensionsRequired") or []
-        if "KHR_mesh_quantization" in required:
-            raise MeshError(f"mesh '{path}' is quantized (KHR_mesh_quantization, e.g. written with --compact); "
-                            "faceanim reads plain glTF: give the file written without --compact")
+    if path.suffix.lower() in (".glb", ".gltf"):
+        _check_gltf(path)
     log = logging.getLogger("trimesh")
     level = log.level
     log.setLevel(logging.CRITICAL + 1)  # its warnings would add lines to the one-line error rule

@@ -28,7 +28,7 @@ from faceanim.deform.wires import (
     extract_wires,
     wire_influence,
 )
-from faceanim.errors import DeformError, InputFileError
+from faceanim.errors import DeformError, InputFileError, shown
 from faceanim.face.frame import face_frame
 from faceanim.face.landmarks import SLITS
 from faceanim.face.mesh import Mesh
@@ -40,6 +40,8 @@ from faceanim.rig.rig import Rig
 MAX_WIRES = 200  # wires in one template file
 MAX_WIRE_CONTROLS = 1000  # control points of one wire
 MAX_EDITS = 10_000  # edits in one edit file
+MAX_BLEND_SAMPLES = 1000  # samples of a user blending curve
+MAX_BLEND_WEIGHT = 10.0  # |g(t)|: past ten times the way to the target a face folds over itself
 
 BLENDING_FUNCTIONS = {
     "linear": lambda t: t,
@@ -190,7 +192,7 @@ class WireTemplate:
                 groups.append(group)
                 side = w.get("side")
                 if side is not None:
-                    if not (isinstance(side, list) and len(side) == 2 and side[0] in SLITS
+                    if not (isinstance(side, list) and len(side) == 2 and isinstance(side[0], str) and side[0] in SLITS
                             and side[1] in ("upper", "lower")):
                         raise bad(f"wire '{name}' side must be [slit, 'upper' | 'lower'] with a slit of "
                                   f"{', '.join(SLITS)}")
@@ -272,19 +274,19 @@ def blending_function(name: str):
     comma list of samples g(0), ..., g(1) for a user curve (linear between samples)."""
     if name in BLENDING_FUNCTIONS:
         return BLENDING_FUNCTIONS[name]
+    parts = str(name).split(",")
     try:
-        ys = np.array([float(x) for x in str(name).split(",")])
+        if len(parts) > MAX_BLEND_SAMPLES:
+            raise ValueError
+        ys = np.array([float(x) for x in parts])
     except ValueError:
-        raise DeformError(f"unknown blending function '{name}'; use one of {', '.join(BLENDING_FUNCTIONS)} "
-                          "or samples like 0,0.1,0.5,1") from None
-    if len(ys) < 2 or not np.all(np.isfinite(ys)):
-        raise DeformError(f"a blending curve needs at least two finite samples, got '{name}'")
+        raise DeformError(f"unknown blending function '{shown(name)}'; use one of {', '.join(BLENDING_FUNCTIONS)} "
+                          f"or up to {MAX_BLEND_SAMPLES} samples like 0,0.1,0.5,1") from None
+    if len(ys) < 2 or not np.all(np.isfinite(ys)) or np.abs(ys).max() > MAX_BLEND_WEIGHT:
+        raise DeformError(f"a blending curve needs at least two finite samples between -{MAX_BLEND_WEIGHT:g} and "
+                          f"{MAX_BLEND_WEIGHT:g} (1 = the target template), got '{shown(name)}'")
     xs = np.linspace(0.0, 1.0, len(ys))
     return lambda t: np.interp(t, xs, ys)
-
-
-
-
 
 
 def blend_blendshapes(a: WireTemplate, b: WireTemplate, bound: WireInfluence) -> dict[str, np.ndarray]:

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.errors import FaceAnimError
+from faceanim.errors import shown as _shown
 from faceanim.io.audio import check_rate, read_audio, resample, write_wav
 from faceanim.limits import MAX_DURATION, MAX_TEXT
 
@@ -85,10 +86,6 @@ def words_of(text: str, what: str = "the text") -> list[str]:
     return words
 
 
-def _shown(value, limit: int = 40) -> str:
-    """A user-given name as it may appear in a one-line message: printable, at most ``limit`` long."""
-    s = "".join(c if c.isprintable() else "?" for c in str(value))
-    return s if len(s) <= limit else s[:limit - 3] + "..."
 
 
 # ----------------------------------------------------------------------------------- espeak-ng
