@@ -19,6 +19,7 @@ from faceanim.cli.common import (
     named_paths,
     report,
 )
+from faceanim.errors import shown
 
 
 def _cmd_landmarks(args) -> None:
@@ -98,9 +99,18 @@ def load_face_mesh(args):
     return default_face() if path in (None, "default") else load_mesh(path)
 
 
+def _axis(text: str) -> str:
+    import argparse
+    import re
+
+    if not re.fullmatch(r"[+-]?[xyzXYZ]", text.strip()):
+        raise argparse.ArgumentTypeError(f"'{shown(text, 12)}' is not an axis; use one of +x -x +y -y +z -z")
+    return text.strip().lower() if text.strip()[0] in "+-" else "+" + text.strip().lower()
+
+
 def _axes(p) -> None:
-    p.add_argument("--forward", default="+z", help="axis the face looks along: +x -x +y -y +z -z")
-    p.add_argument("--up", default="+y", help="axis pointing up")
+    p.add_argument("--forward", default="+z", type=_axis, help="axis the face looks along: +x -x +y -y +z -z")
+    p.add_argument("--up", default="+y", type=_axis, help="axis pointing up")
 
 
 def register(sub) -> None:
