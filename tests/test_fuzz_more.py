@@ -288,10 +288,7 @@ _BAD_TEMPLATES = {
     "side_unknown_slit": (["wires", 0, "side"], ["nose", "upper"]),
     "side_slit_is_a_list": (["wires", 0, "side"], [[], None]),
 }
-_STILL_FAILING = {
-    "side_slit_is_a_list": "from_dict: 'side': [[], None] raises TypeError (unhashable list) in the slit check "
-                           "'side[0] in SLITS' (found by this fuzzer with more examples, after 5ba2598)",
-}
+_STILL_FAILING: dict[str, str] = {}  # name -> reason, for cases found failing and not yet fixed
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=[pytest.mark.xfail(strict=True, reason=_STILL_FAILING[n])]
