@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 from pathlib import Path
@@ -150,6 +151,20 @@ def named_paths(args) -> list[str]:
             if isinstance(v, str) and v:
                 out.append(v)
     return out
+
+
+@contextlib.contextmanager
+def outputs_together():
+    """For commands that write several files: yields a list to append each written path to; if
+    anything fails after the first is written, the ones already written are removed (a command
+    leaves all its outputs or none)."""
+    written: list = []
+    try:
+        yield written
+    except BaseException:
+        for p in written:
+            Path(p).unlink(missing_ok=True)
+        raise
 
 
 def report(paths) -> None:

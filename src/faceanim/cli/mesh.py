@@ -17,6 +17,7 @@ from faceanim.cli.common import (
     check_outputs,
     face_path,
     named_paths,
+    outputs_together,
     report,
 )
 from faceanim.errors import shown
@@ -33,10 +34,10 @@ def _cmd_landmarks(args) -> None:
     else:
         lms, image = detect_landmarks(mesh, scheme=args.scheme, forward=args.forward, up=args.up,
                                       return_image=True)
-    lms.save(args.output)
-    written = [args.output]
-    if args.image:
-        written.append(save_png(args.image, image))
+    with outputs_together() as written:
+        written.append(lms.save(args.output))
+        if args.image:
+            written.append(save_png(args.image, image))
     print(f"wrote {len(lms)} '{lms.scheme}' landmarks to {args.output}"
           + (f" and the render used for detection to {args.image}" if args.image else ""))
 
@@ -49,13 +50,14 @@ def _cmd_deform(args) -> None:
     mesh = load_face_mesh(args)
     deformer, offsets = load_handles(args.handles, mesh, args.forward, args.up)
     deformed = deformer.apply(offsets)
-    written = save_mesh(mesh, args.output, deformed, avoid=named_paths(args))
+    with outputs_together() as written:
+        written += save_mesh(mesh, args.output, deformed, avoid=named_paths(args))
+        if args.image:
+            from faceanim.render import render_png
+
+            written.append(render_png(mesh, args.image, deformed))
     moved = int((np.abs(deformed - mesh.vertices).max(1) > 0).sum())
     print(f"deformed {moved} of {mesh.n_vertices} vertices; wrote {', '.join(map(str, written))}")
-    if args.image:
-        from faceanim.render import render_png
-
-        report([render_png(mesh, args.image, deformed)])
 
 
 def _cmd_render(args) -> None:
@@ -83,11 +85,12 @@ def _cmd_preprocess(args) -> None:
     else:
         ref = AverageFace.load(args.reference) if args.reference else None
         grid = preprocess(face.mesh, face.landmarks, ref, args.grid, args.crop)
-    written = save_mesh(grid.mesh, args.output, avoid=[lm_path, *named_paths(args)])
-    write_json(lm_path, {"scheme": "mediapipe478", "points": [
-        {"index": i, "position": [float(x) for x in p]} for i, p in enumerate(grid.landmarks)]})
-    print(f"wrote {', '.join(map(str, written))} ({grid.mesh.n_vertices} grid vertices of {args.grid}x{args.grid}) "
-          f"and {lm_path}")
+    with outputs_together() as written:
+        written += save_mesh(grid.mesh, args.output, avoid=[lm_path, *named_paths(args)])
+        written.append(lm_path)  # removed with the grid if it cannot be written
+        write_json(lm_path, {"scheme": "mediapipe478", "points": [
+            {"index": i, "position": [float(x) for x in p]} for i, p in enumerate(grid.landmarks)]})
+    print(f"wrote {', '.join(map(str, written))} ({grid.mesh.n_vertices} grid vertices of {args.grid}x{args.grid})")
 
 
 def load_face_mesh(args):

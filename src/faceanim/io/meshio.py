@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from faceanim.errors import FaceAnimError, MeshError
+from faceanim.errors import FaceAnimError, MeshError, shown
 from faceanim.face.mesh import Mesh
 from faceanim.io.files import OutputError, atomic_output, check_output_path
 
@@ -233,7 +233,7 @@ def _read_mtl_texture(obj: Path, mtl: Path, material: str | None) -> np.ndarray 
     image = mtl.parent / name
     if not image.is_file():
         return None
-    return _read_image(image, f"texture '{image}' of mesh '{obj}'")
+    return _read_image(image, f"texture '{shown(name)}' of mesh '{obj}'")
 
 
 def _read_image(path: Path, what: str = "image") -> np.ndarray:
@@ -298,7 +298,7 @@ def _check_ply_header(path: Path) -> None:
         raise MeshError(f"mesh '{path}' is truncated: its PLY header promises more elements than the file holds")
 
 
-def _check_gltf(path: Path) -> None:
+def _check_gltf(path: Path) -> dict:
     """What trimesh would read without asking: a GLB whose header disagrees with the file's size,
     JSON nested too deep, quantized data it misreads, and files referenced outside the glTF's
     folder (``uri: /etc/passwd``); all refused before it reads anything."""
@@ -334,6 +334,7 @@ def _check_gltf(path: Path) -> None:
             if "://" in uri or target.parent != folder and folder not in target.parents:
                 raise MeshError(f"mesh '{path}' refers to a file outside its folder ({key}); faceanim reads only "
                                 "files beside a glTF")
+    return doc
 
 
 def _load_with_trimesh(path: Path) -> Mesh:
@@ -342,8 +343,7 @@ def _load_with_trimesh(path: Path) -> Mesh:
 
     if path.suffix.lower() == ".ply":
         _check_ply_header(path)
-    if path.suffix.lower() in (".glb", ".gltf"):
-        _check_gltf(path)
+    doc = _check_gltf(path) if path.suffix.lower() in (".glb", ".gltf") else None
     log = logging.getLogger("trimesh")
     level = log.level
     log.setLevel(logging.CRITICAL + 1)  # its warnings would add lines to the one-line error rule
@@ -387,6 +387,9 @@ def _load_with_trimesh(path: Path) -> Mesh:
         log.setLevel(level)
     if vertices.ndim != 2 or vertices.shape[1:] != (3,) or faces.ndim != 2 or faces.shape[1:] != (3,):
         raise MeshError(f"mesh '{path}' is not a triangle mesh; re-export it")
+    if doc and doc.get("images") and doc.get("textures") and uv is not None and texture is None:
+        raise MeshError(f"mesh '{path}' names a texture that cannot be read (damaged or not an image); "
+                        "re-export it, or remove the texture")
     return Mesh(vertices, faces, uv, None, texture, name=path.stem, source=str(path))
 
 

@@ -40,6 +40,7 @@ from faceanim.rig.rig import Rig
 MAX_WIRES = 200  # wires in one template file
 MAX_WIRE_CONTROLS = 1000  # control points of one wire
 MAX_EDITS = 10_000  # edits in one edit file
+MAX_WIRE_COORDINATE = 1e6  # mesh units: a face in millimetres is ~200 wide
 MAX_BLEND_SAMPLES = 1000  # samples of a user blending curve
 MAX_BLEND_WEIGHT = 10.0  # |g(t)|: past ten times the way to the target a face folds over itself
 
@@ -180,6 +181,8 @@ class WireTemplate:
                 if not isinstance(name, str) or not name:
                     raise bad(f"wire {j} needs a name")
                 reference = check_points(w.get("reference"), f"wire '{name}' reference", min_count=4)
+                if np.abs(reference).max() > MAX_WIRE_COORDINATE:
+                    raise bad(f"wire '{shown(name)}' reference has a coordinate beyond {MAX_WIRE_COORDINATE:g}")
                 if len(reference) > MAX_WIRE_CONTROLS:
                     raise bad(f"wire '{name}' has more than {MAX_WIRE_CONTROLS} control points")
                 r = w.get("range")
@@ -199,6 +202,8 @@ class WireTemplate:
                     side = tuple(side)
                 sides.append(side)
                 c = check_points(w.get("wire"), f"wire '{name}' control points")
+                if np.abs(c).max() > MAX_WIRE_COORDINATE:
+                    raise bad(f"wire '{shown(name)}' has a control point beyond {MAX_WIRE_COORDINATE:g}")
                 if c.shape != reference.shape:
                     raise bad(f"wire '{name}' has {len(c)} wire control points for {len(reference)} reference ones")
                 controls.append(c)
