@@ -99,7 +99,7 @@ def test_demo_refuses_an_out_folder_that_is_a_file(tmp_path, capsys):
     (["demo", "--size", "0"], "--size must be at least 16"),
     (["wires", "blend", "--base", "b.obj", "--from", "a", "--to", "b", "--frames", "1e9"],
      "--frames must be at least 2 and at most 200000"),
-    (["preprocess", "scan.obj", "--grid", "100000"], "--grid must be at least 8 and at most 1000"),
+    (["preprocess", "scan.obj", "--grid", "100000"], "--grid must be at least 8 and at most 500"),
     (["say", "hi", "--intensity", "inf"], "--intensity must be a finite number"),
 ])
 def test_absurd_numbers_are_refused_before_anything_is_allocated(tmp_path, capsys, argv, message):

@@ -17,6 +17,7 @@ from faceanim.errors import FaceAnimError
 from faceanim.face.faps import FapStream, faps
 from faceanim.face.mesh import Mesh
 from faceanim.io.gltf import write_gltf
+from faceanim.limits import check_video
 from faceanim.render import OffscreenRenderer, write_video
 from faceanim.rig.mpeg4 import FapRig
 from faceanim.rig.rig import Rig
@@ -36,6 +37,7 @@ def render_curves(rig: Rig, curves: np.ndarray, path, fps: float, view: dict | N
     """Render a rig driven by (F, C) curves to an MP4 (with the sound file ``audio``). ``view``:
     the camera (:meth:`Face.view <faceanim.face.face.Face.view>`: framed on the face oval, turned a
     little); without it the whole mesh, straight on."""
+    check_video(len(curves), size, size)
     with OffscreenRenderer(rig.mesh, size=(size, size), **(view or {})) as r:
         frames = (r.render(v) for v in frames_of(rig, curves))
         return write_video(path, frames, fps=fps, audio=audio, progress=progress)

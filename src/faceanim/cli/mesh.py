@@ -150,7 +150,7 @@ def register(sub) -> None:
                                            "(also writes OUT.landmarks.json)")
     add_face(pp, aliases=("--scan",))
     add_output(pp, [".obj", ".ply", ".glb"])
-    pp.add_argument("--grid", type=GRID, default=150, help="grid vertices per side (8..1000)")
+    pp.add_argument("--grid", type=GRID, default=150, help="grid vertices per side (8..500)")
     pp.add_argument("--crop", default="oval", choices=["oval", "radius"],
                     help="inside the landmark face oval, or a radius around the nose tip (raw scans)")
     pp.add_argument("--reference", help="average face model (.npz) to normalise to (default: faceanim's)")

@@ -70,6 +70,10 @@ def _cmd_blend(args) -> None:
             raise CommandError(f"--group takes NAME=FUNCTION, got '{item}'")
         k, v = item.split("=", 1)
         functions[k] = v
+    if Path(args.output).suffix.lower() == ".mp4":
+        from faceanim.limits import check_video
+
+        check_video(args.frames * len(args.to), args.size, args.size)
     check_outputs(args.output)
     face = load_face(args, required=True)
     templates = [WireTemplate.load(p) for p in [args.source] + list(args.to)]

@@ -180,6 +180,8 @@ class WireTemplate:
                 name = w.get("name")
                 if not isinstance(name, str) or not name:
                     raise bad(f"wire {j} needs a name")
+                if any(w.name == name for w in wires):
+                    raise bad(f"two wires are named '{shown(name)}'; each wire once")
                 reference = check_points(w.get("reference"), f"wire '{name}' reference", min_count=4)
                 if np.abs(reference).max() > MAX_WIRE_COORDINATE:
                     raise bad(f"wire '{shown(name)}' reference has a coordinate beyond {MAX_WIRE_COORDINATE:g}")
@@ -207,7 +209,7 @@ class WireTemplate:
                 if c.shape != reference.shape:
                     raise bad(f"wire '{name}' has {len(c)} wire control points for {len(reference)} reference ones")
                 controls.append(c)
-                scales.append(check_number(w.get("scale", 1.0), f"wire '{name}' scale", -1e3, 1e3))
+                scales.append(check_number(w.get("scale", 1.0), f"wire '{name}' scale", 0.0, 1e3, low_inclusive=False))
         except DeformError as exc:
             raise bad(str(exc)) from None
         meta = d.get("meta", {})
@@ -332,12 +334,15 @@ def parse_edits(spec, wireset: WireSet) -> tuple[dict[int, list[tuple[int, np.nd
         j = wireset.names.index(e["wire"])
         try:
             if "scale" in e:
-                scales[j] = check_number(e["scale"], f"edit {n}: the scale", -1e3, 1e3)
+                scales[j] = check_number(e["scale"], f"edit {n}: the scale", 0.0, 1e3, low_inclusive=False)
             if "control" in e:
                 last = wireset.wires[j].reference.n_control - 1
                 i = check_number(e["control"], f"edit {n}: wire '{e['wire']}' control (0..{last})", 0, last,
                                  integer=True)
-                off = check_points(e.get("offset"), f"edit {n}: 'offset' [dx, dy, dz]")
+                raw = e.get("offset")
+                if not (isinstance(raw, list) and len(raw) == 3 and not any(isinstance(x, list) for x in raw)):
+                    raise InputFileError(f"edit {n}: 'offset' must be one [dx, dy, dz]")
+                off = check_points(raw, f"edit {n}: 'offset' [dx, dy, dz]")
                 if off.shape != (1, 3) or np.abs(off).max() > 1e6:
                     raise InputFileError(f"edit {n}: 'offset' must be one [dx, dy, dz] of reasonable size")
                 moves.setdefault(j, []).append((i, off[0]))
