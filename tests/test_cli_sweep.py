@@ -133,6 +133,10 @@ CASES = [
                              "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
                              "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]})},
      r"refers to a file outside its folder", None),
+    ("mesh_uv_index_without_uvs", ["render", "in.obj", "-o", "o.png"],
+     {"in.obj": TRI + "v 0 0 1\nf 1/5 2/5 3/5\nf 1 2 4\n"}, r"texture coordinate",
+     ("a face corner names texture coordinate 5 in a file without any 'vt' line: accepted silently with exit 0 "
+      "(a missing vertex index is refused)")),
     ("mesh_wrong_suffix", ["render", "in.stl", "-o", "o.png"], {"in.stl": TRI + "f 1 2 3\n"},
      r"unsupported format '\.stl'", None),
     ("mesh_texture_bomb", ["render", "in.obj", "-o", "o.png"],
@@ -304,7 +308,6 @@ CASES = [
     # ---------------------------------------------------------------- numbers and names
     ("opt_size_1e9", ["render", "-o", "o.png", "--size", "1e9"], {}, r"--size must be at least 16 and at most 4096",
      None),
-    ("opt_yaw_nan", ["render", "-o", "o.png", "--yaw", "nan"], {}, r"must be a finite number", None),
     ("opt_fps_0", ["fap", "write", "--expression", "joy", "--fps", "0", "-o", "o.fap"], {}, r"--fps must be more than 0",
      None),
     ("opt_unknown_emotion", ["au", "--emotion", "glee", "-o", "o.obj"], {}, r"glee", None),
@@ -444,3 +447,16 @@ def test_bad_input_is_one_clean_line_and_leaves_nothing(tmp_path, assets, args, 
     assert _state(work) == before, "the folder changed: a file was left, replaced or removed"
     assert os.listdir(tmp) == [], f"left in TMPDIR: {os.listdir(tmp)}"
     assert _state(assets) == assets_before, "an input file was changed"
+
+
+@pytest.mark.xfail(strict=True, reason="the sound written beside a .glb takes the name OUT.wav when that is a dangling "
+                                       "symlink, then refuses it as 'a device, pipe or socket' (exit 2): a valid "
+                                       "command fails; a free name (OUT-1.wav) should be taken instead")
+def test_the_sound_beside_a_glb_skips_a_dangling_link(tmp_path, assets):
+    os.symlink(tmp_path / "gone.wav", tmp_path / "out.wav")
+    proc = subprocess.run([sys.executable, "-m", "faceanim", "fap", "play", str(assets / "joy.fap"), "--audio",
+                           str(assets / "short.wav"), "-o", "out.glb"], cwd=tmp_path, stdin=subprocess.DEVNULL,
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert os.readlink(tmp_path / "out.wav") == str(tmp_path / "gone.wav")  # the link is left alone
+    assert (tmp_path / "out.glb").is_file() and (tmp_path / "out-1.wav").is_file()
