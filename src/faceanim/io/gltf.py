@@ -323,7 +323,7 @@ def sound_companion(glb: str | os.PathLike) -> Path:
         if isinstance(named, str) and Path(named).name == named and named.lower().endswith(".wav"):
             return out.with_name(named)
     candidate, k = out.with_suffix(".wav"), 1
-    while candidate.exists():
+    while os.path.lexists(candidate):  # a dangling link is taken too
         candidate = out.with_name(f"{out.stem}-{k}.wav")
         k += 1
     return candidate

@@ -167,6 +167,11 @@ def _load_obj(path: Path) -> Mesh:
         face = int(np.searchsorted(np.cumsum(sizes), k, side="right"))
         raise _obj_error(path, f_line[face], f"a face indexes missing vertices (vertex {cv[k] + 1}; the file "
                                              f"has {len(v)}, 1..{len(v)})")
+    if not uvs and corner_t and max(corner_t) >= 0:
+        k = int(np.flatnonzero(np.array(corner_t) >= 0)[0])
+        face = int(np.searchsorted(np.cumsum(sizes), k, side="right"))
+        raise _obj_error(path, f_line[face], "a face indexes texture coordinates (f v/vt) but the file has no vt "
+                                             "lines; repair or re-export the mesh")
     has_uv = bool(uvs) and all_t
     faces = _fan(cv, sizes)
     uv = face_uv = None
