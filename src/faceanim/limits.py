@@ -19,6 +19,7 @@ MAX_DURATION = 3600.0  # seconds of animation (one hour)
 MAX_FRAMES = 200_000  # frames of one animation (an hour at 55 fps; a glTF of a 30k face at 200k frames
 #                       is already ~24 MB of weights alone)
 MAX_GRID = 500  # vertices per side of a resampling grid (250,000 vertices; the thesis uses 150)
+MAX_VIDEO_SIZE = 2048  # pixels per side of an MP4 (PNGs may be up to MAX_IMAGE_SIZE)
 MAX_VIDEO_PIXELS = 6e10  # frames x width x height of one video (512 x 512 for 200,000 frames, 4096 x 4096
 #                          for 3,500): past this an MP4 takes many hours to render
 MAX_ACTIONS = 100_000  # actions on one timeline (visemes, blinks, expressions)
@@ -66,7 +67,11 @@ def check_frames(n, name: str = "frames") -> int:
 
 
 def check_video(frames: int, width: int, height: int) -> None:
-    """Refuse a video whose frames x pixels would take many hours (``MAX_VIDEO_PIXELS``)."""
+    """Refuse a video larger than ``MAX_VIDEO_SIZE`` per side (H.264 at 4096 px takes ffmpeg
+    3.5 GB) or whose frames x pixels would take many hours (``MAX_VIDEO_PIXELS``)."""
+    if max(width, height) > MAX_VIDEO_SIZE:
+        raise LimitError(f"a video frame of {width}x{height} pixels is larger than faceanim encodes "
+                         f"({MAX_VIDEO_SIZE} per side); lower --size")
     if frames * width * height > MAX_VIDEO_PIXELS:
         raise LimitError(f"{frames} frames of {width}x{height} pixels is more video than faceanim renders in one go "
                          f"({MAX_VIDEO_PIXELS:.0e} frame pixels); lower --size or the number of frames")

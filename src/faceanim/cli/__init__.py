@@ -45,7 +45,9 @@ class _Parser(argparse.ArgumentParser):
 
 def _cmd_demo(args) -> None:
     from faceanim.demo import run_demo
+    from faceanim.limits import check_video
 
+    check_video(1, args.size, args.size)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise FaceAnimError(f"--out '{out}' is a file; give a folder")

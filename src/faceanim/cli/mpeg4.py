@@ -68,6 +68,7 @@ def _cmd_say(args) -> None:
         voice = check_voice(args.voice)
     if args.expression:
         expression_faps(args.expression)  # an unknown name is refused before any work
+    check_video_size(args)
     check_outputs(args.output)
     if args.audio:
         from faceanim.io.audio import read_audio
@@ -101,6 +102,7 @@ def _cmd_fap_play(args) -> None:
     from faceanim.io.fapfile import read_fap
     from faceanim.rig.mpeg4 import FapRig
 
+    check_video_size(args)
     check_outputs(args.output)
     stream = read_fap(args.fap)
     if args.audio:
@@ -163,6 +165,7 @@ def _cmd_direct(args) -> None:
     from faceanim.face.face import Face
     from faceanim.rig.mpeg4 import FapRig
 
+    check_video_size(args)
     check_outputs(args.output)
     script = load_script(args.script)
     scripted = script.face
@@ -178,6 +181,14 @@ def _cmd_direct(args) -> None:
         written = _write(args, rig, stream, face, audio)
     print(f"wrote {', '.join(map(str, written))} ({stream.n_frames} frames, {len(scene.actions)} actions, "
           f"{scene.duration:.1f} s)")
+
+
+def check_video_size(args) -> None:
+    """An MP4's size is refused before any work (not after the face and rig are built)."""
+    if Path(args.output).suffix.lower() == ".mp4":
+        from faceanim.limits import check_video
+
+        check_video(1, args.size, args.size)
 
 
 def _video_options(p, suffixes) -> None:

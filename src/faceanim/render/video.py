@@ -11,7 +11,7 @@ import numpy as np
 
 from faceanim.errors import FaceAnimError
 from faceanim.io.files import atomic_output
-from faceanim.limits import check_fps
+from faceanim.limits import check_fps, check_video
 
 
 def save_png(path: str | os.PathLike, image: np.ndarray) -> Path:
@@ -102,6 +102,7 @@ def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=Non
                     if frame.ndim != 3 or frame.shape[2] != 3:
                         raise FaceAnimError(f"video frames must be (H, W, 3) RGB images, got shape {frame.shape}")
                     h, w = frame.shape[:2]
+                    check_video(1, w, h)
                     if w % 2 or h % 2:
                         raise FaceAnimError(f"video frames need even width and height, got {w}x{h}")
                     size = (w, h)

@@ -56,8 +56,8 @@ class RigidPart:
     name : str
     rows : (R,) int
         Vertices of the part.
-    weights : (R,) float
-        Share of the part's motion each vertex follows (1 = rigid).
+    share : (R,) float
+        Share of the part's motion each vertex follows (1 = rigid; the jaw fades into the cheeks).
     pivot : (3,)
         Centre of rotation in mesh coordinates.
     axes : (3, 3)
@@ -79,7 +79,7 @@ class RigidPart:
 
     name: str
     rows: np.ndarray
-    weights: np.ndarray
+    share: np.ndarray
     pivot: np.ndarray
     axes: np.ndarray
     rotations: Sequence[tuple[str, int, float]] = ()
@@ -89,8 +89,8 @@ class RigidPart:
 
     @property
     def rigid(self) -> bool:
-        """Every vertex follows the part fully (weights all 1)."""
-        return bool(np.all(self.weights == 1.0))
+        """Every vertex follows the part fully (share all 1)."""
+        return bool(np.all(self.share == 1.0))
 
     @property
     def controls(self) -> list[str]:
@@ -133,7 +133,7 @@ class RigidPart:
         for c, vec in self.translations:
             if c == control:
                 out += np.asarray(vec)[None]
-        return out * self.weights[:, None]
+        return out * self.share[:, None]
 
 
 @dataclass(eq=False)
@@ -284,7 +284,7 @@ class Rig:
             r_local, t = part.transforms(values, len(active))
             r = part.axes.T[None] @ r_local @ part.axes[None]  # in mesh coordinates
             whole = part.rows.size == rest.shape[0] and np.array_equal(part.rows, np.arange(rest.shape[0]))
-            w = part.weights[None, :, None]
+            w = part.share[None, :, None]
             for lo in range(0, len(active), 16):  # a few frames at a time: bounded temporaries
                 f = active[lo:lo + 16]
                 at = (f,) if whole else (f[:, None], part.rows[None])
