@@ -92,12 +92,17 @@ def orient_towards_viewer(faces: np.ndarray, vertices: np.ndarray) -> np.ndarray
     return faces
 
 
-def main() -> None:
+def main(argv=None) -> None:
+    import argparse
+
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     from skimage import data
 
     photo = data.astronaut()
     h, w = photo.shape[:2]
-    lm = detect_landmarks_in_image(photo)  # (478, 3) normalised x, y, z
+    # one detection at the photo's own scale, as the committed asset was built (faceanim's
+    # detection of rendered meshes takes the median over three zooms)
+    lm = detect_landmarks_in_image(photo, scales=(1.0,))  # (478, 3) normalised x, y, z
     # image space, in pixels: x right, y up, z towards the camera
     pix = np.c_[lm[:, 0] * w, -lm[:, 1] * h, -lm[:, 2] * w]
 
