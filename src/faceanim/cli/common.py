@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from faceanim.errors import FaceAnimError
+from faceanim.errors import FaceAnimError, shown
 from faceanim.limits import (
     MAX_DURATION,
     MAX_FPS,
@@ -39,13 +39,20 @@ def _arg_type(name: str, low: float, high: float, integer: bool = False, low_inc
     return parse
 
 
-FPS = _arg_type("--fps", 0.0, MAX_FPS, low_inclusive=False)
-def SIZE(text: str) -> int:  # noqa: N802 - an argparse type, named like the others
+_SIZE_RANGE = _arg_type("--size", MIN_IMAGE_SIZE, MAX_IMAGE_SIZE, integer=True)
+
+
+def _even_size(text: str) -> int:
     """Pixels per side: a whole, even number (H.264 video needs even sizes) in range."""
-    size = _arg_type("--size", MIN_IMAGE_SIZE, MAX_IMAGE_SIZE, integer=True)(text)
+    size = _SIZE_RANGE(text)
     if size % 2:
         raise argparse.ArgumentTypeError(f"--size must be even (video needs even sizes), got {size}")
     return size
+
+
+_even_size.__name__ = "size"
+FPS = _arg_type("--fps", 0.0, MAX_FPS, low_inclusive=False)
+SIZE = _even_size
 FRAMES = _arg_type("--frames", 2, MAX_FRAMES, integer=True)
 GRID = _arg_type("--grid", 8, MAX_GRID, integer=True)
 DURATION = _arg_type("--duration", 0.0, MAX_DURATION, low_inclusive=False)
@@ -57,7 +64,7 @@ def output_type(suffixes):
     """An argparse type accepting paths that end in one of ``suffixes``."""
     def check(value: str) -> str:
         if Path(value).suffix.lower() not in suffixes:
-            raise argparse.ArgumentTypeError(f"'{value}' must end in one of: {', '.join(suffixes)}")
+            raise argparse.ArgumentTypeError(f"'{shown(value, 80)}' must end in one of: {', '.join(suffixes)}")
         return value
     return check
 
