@@ -6,7 +6,7 @@ Every file faceanim writes goes through :func:`atomic_output`:
   work starts): the folder must exist (it is never created: a typo in ``-o out/x.glb`` would
   otherwise make a tree of folders), be a folder and be writable; the path must not be a folder
   or a special file, and an existing file must be replaceable.
-- The data goes to a hidden temporary file beside the output, ``.{stem}.faceanim-{pid}-XXXX{suffix}``,
+- The data goes to a hidden temporary file beside the output, ``.{stem}.faceanim-{pid}-<random>{suffix}``,
   which is renamed onto the output only when the writer succeeded. On every failure (an
   exception, Ctrl-C, SIGTERM or SIGHUP) the temporary file is removed, so a failed or killed write
   leaves neither a partial output nor a hidden file. An OSError while writing or renaming becomes
@@ -194,7 +194,7 @@ def _pid_alive(pid: int) -> bool:
 def remove_stale_temps(folder: str | os.PathLike) -> list[Path]:
     """Remove faceanim's temporary files in ``folder`` whose writing process is gone; returns them.
 
-    Only names of faceanim's own pattern (``.{stem}.faceanim-{pid}-XXXX{suffix}``) are considered,
+    Only names of faceanim's own pattern (``.{stem}.faceanim-{pid}-<random>{suffix}``) are considered,
     and only those whose pid is not a live process. (Processes in another pid namespace sharing the
     folder look dead from here; their write then fails cleanly at the rename.)
     """

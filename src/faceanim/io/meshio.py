@@ -160,16 +160,18 @@ def _load_obj(path: Path) -> Mesh:
         raise _obj_error(path, v_line[i], f"NaN or infinite coordinates at vertex index {i}; repair or "
                                           "re-export the mesh")
     sizes = np.array(sizes, dtype=np.int64)
+    ends = np.cumsum(sizes)  # corner k belongs to polygon searchsorted(ends, k, "right"): its f line
+
     cv = np.array(corner_v, dtype=np.int64)
     out = cv >= len(v)
     if out.any():
         k = int(np.flatnonzero(out)[0])
-        face = int(np.searchsorted(np.cumsum(sizes), k, side="right"))
+        face = int(np.searchsorted(ends, k, side="right"))
         raise _obj_error(path, f_line[face], f"a face indexes missing vertices (vertex {cv[k] + 1}; the file "
                                              f"has {len(v)}, 1..{len(v)})")
     if not uvs and corner_t and max(corner_t) >= 0:
         k = int(np.flatnonzero(np.array(corner_t) >= 0)[0])
-        face = int(np.searchsorted(np.cumsum(sizes), k, side="right"))
+        face = int(np.searchsorted(ends, k, side="right"))
         raise _obj_error(path, f_line[face], "a face indexes texture coordinates (f v/vt) but the file has no vt "
                                              "lines; repair or re-export the mesh")
     has_uv = bool(uvs) and all_t
@@ -186,7 +188,7 @@ def _load_obj(path: Path) -> Mesh:
         out = ct >= len(uv)
         if out.any():
             k = int(np.flatnonzero(out)[0])
-            face = int(np.searchsorted(np.cumsum(sizes), k, side="right"))
+            face = int(np.searchsorted(ends, k, side="right"))
             raise _obj_error(path, f_line[face], f"a face indexes missing texture coordinates (vt {ct[k] + 1}; "
                                                  f"the file has {len(uv)})")
         face_uv = _fan(ct, sizes)
