@@ -414,13 +414,15 @@ class OffscreenRenderer:
         return origins_view @ self.rotation, np.tile(d_view @ self.rotation, (len(x), 1))
 
     def project(self, points: np.ndarray) -> np.ndarray:
-        """Normalised image coordinates (x right, y down) of mesh-space points, parallel view."""
+        """Normalised image coordinates (x right, y down) of mesh-space points, parallel view (any
+        yaw and pitch)."""
         if not self.parallel:
             raise FaceAnimError("projection is defined for the parallel (orthographic) view only")
         v = self._view(np.atleast_2d(points))
+        eye = v @ self.camera.view_matrix()[:3, :3].T + self.camera.view_matrix()[:3, 3]  # any yaw, pitch
         height = 2.0 * self.parallel_scale
         width = height * self.size[0] / self.size[1]
-        return np.stack([(v[:, 0] - self.centre[0]) / width + 0.5, 0.5 - (v[:, 1] - self.centre[1]) / height], 1)
+        return np.stack([eye[:, 0] / width + 0.5, 0.5 - eye[:, 1] / height], 1)
 
     def close(self) -> None:
         """Free the GL buffers, texture and framebuffers (the shared context stays)."""

@@ -1,0 +1,111 @@
+"""Build faceanim's generic head asset from the ICT FaceKit generic neutral head (MIT licence).
+
+Lee et al. (1999) deform "a previously constructed, animation-ready generic model" onto the
+feature points found in photos. Ours is the ICT Face Model's generic neutral head (light-stage
+scans, USC ICT, MIT licence: its notice ships as ``assets/LICENSE-ICT-FaceKit.txt``):
+
+- parts kept as separate shells of one mesh: the skin (head, neck, mouth socket, eye sockets),
+  gums and tongue, teeth, and the two eyeballs; the transparent overlay shells over the eyes
+  (lacrimal fluid, eye blend, eye occlusion) are dropped: they need alpha blending to look right;
+- units turned from centimetres to metres; +z forward, +y up, +x the subject's left (as ICT);
+- the 478 MediaPipe landmarks detected once on a render of it and stored on its triangles
+  (triangle + barycentric), so they follow any deformation of the head;
+- its 53 expression blendshapes (Apple ARKit names with ``_L``/``_R``) stored as sparse float16
+  deltas (metres): they let the photo pipeline take the smile off a smiling photo.
+
+Usage: ``python scripts/build_generic_head.py ../shared/data/ict-facekit`` (writes
+``src/faceanim/assets/generic_head.npz``; the result is committed, users never run this).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+ASSETS = ROOT / "src" / "faceanim" / "assets"
+# ICT vertex ranges (connected components of generic_neutral_mesh.obj, checked in main())
+PARTS = {"skin": (0, 14062), "gums_tongue": (14062, 17039), "teeth": (17039, 21451),
+         "eyeball_L": (21451, 23021), "eyeball_R": (23021, 24591)}
+KEEP = 24591
+CM = 0.01
+
+
+def obj_vertices(path: Path) -> np.ndarray:
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "rt") as fh:
+        rows = [line.split()[1:4] for line in fh if line.startswith("v ")]
+    return np.array(rows, dtype=np.float64)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("ict", type=Path, help="the ict-facekit folder (generic_neutral_mesh.obj and the 53 shapes)")
+    args = parser.parse_args(argv)
+
+    from faceanim.face.landmarks import detect_landmarks
+    from faceanim.face.mesh import Mesh
+    from faceanim.io.meshio import load_mesh
+
+    src = load_mesh(args.ict / "generic_neutral_mesh.obj")
+    labels = src.vertex_components
+    for k, (name, (a, b)) in enumerate(PARTS.items()):
+        if name in ("skin", "gums_tongue") and len(np.unique(labels[a:b])) != 1:
+            raise SystemExit(f"{name}: vertices {a}..{b} are not one shell; is this the ICT generic head?")
+    # polygons wholly inside the kept vertices (the dropped shells come last)
+    sizes = np.asarray(src.polygon_sizes)
+    poly_of_tri = np.repeat(np.arange(len(sizes)), sizes - 2)
+    keep_poly = np.ones(len(sizes), bool)
+    np.logical_and.at(keep_poly, poly_of_tri, (src.faces < KEEP).all(axis=1))
+    keep_tri = keep_poly[poly_of_tri]
+    vertices = src.vertices[:KEEP] * CM
+    faces = src.faces[keep_tri]
+    mesh = Mesh(vertices, faces, name="generic_head", source="faceanim:generic_head")
+
+    lms = detect_landmarks(mesh)
+    order = np.argsort(lms.indices)
+    assert (lms.indices[order] == np.arange(478)).all()
+
+    shapes, names = {}, []
+    for path in sorted(args.ict.glob("*.obj*")):
+        name = path.name.split(".")[0]
+        if name == "generic_neutral_mesh":
+            continue
+        delta = (obj_vertices(path)[:KEEP] * CM) - vertices
+        rows = np.flatnonzero(np.abs(delta).max(axis=1) > 1e-7)
+        shapes[f"shape_rows_{name}"] = rows.astype(np.int32)
+        shapes[f"shape_delta_{name}"] = delta[rows].astype(np.float16)
+        names.append(name)
+    if len(names) != 53:
+        raise SystemExit(f"expected the 53 ICT expression shapes, found {len(names)}")
+
+    ASSETS.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        ASSETS / "generic_head.npz",
+        vertices=vertices.astype(np.float32),
+        faces=faces.astype(np.int32),
+        polygon_sizes=sizes[keep_poly].astype(np.int8),
+        part_names=np.array(list(PARTS)),
+        part_ranges=np.array(list(PARTS.values()), dtype=np.int32),
+        landmark_triangles=lms.triangles[order].astype(np.int32),
+        landmark_barycentric=lms.barycentric[order].astype(np.float32),
+        shape_names=np.array(names),
+        **shapes,
+    )
+    (ASSETS / "LICENSE-ICT-FaceKit.txt").write_text(
+        "faceanim's generic head (generic_head.npz) is derived from the ICT Face Model\n"
+        "(ICT-VGL/ICT-FaceKit, FaceXModel/generic_neutral_mesh.obj and its 53 expression shapes):\n"
+        "parts kept, units in metres, expression shapes stored as deltas.\n\n"
+        + (args.ict / "LICENSE").read_text())
+    print(f"wrote {ASSETS / 'generic_head.npz'}: {len(vertices)} vertices, {len(faces)} triangles, "
+          f"{len(names)} shapes")
+
+
+if __name__ == "__main__":
+    main()

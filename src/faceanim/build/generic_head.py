@@ -1,0 +1,87 @@
+"""The generic head that photos deform: the ICT FaceKit neutral head (MIT licence).
+
+Lee et al. (1999, 2.1.2) start every person from "a previously constructed, animation-ready
+generic model" with eyeballs and teeth, deformed onto the feature points found in the photos.
+faceanim ships the ICT Face Model's generic neutral head (``assets/generic_head.npz``, built by
+``scripts/build_generic_head.py``; licence notice ``assets/LICENSE-ICT-FaceKit.txt``): 24,591
+vertices in metres (+z forward, +y up, +x the subject's left) with the parts
+
+    skin (head, neck, mouth socket, eye sockets), gums_tongue, teeth, eyeball_L, eyeball_R
+
+as separate shells of one mesh, its 478 MediaPipe landmarks attached to its triangles, and its
+53 expression blendshapes (ARKit names, ``_L``/``_R`` halves) as deltas.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+
+import numpy as np
+import scipy.sparse as sp
+
+from faceanim.face.mesh import Mesh
+
+
+@dataclass(frozen=True, eq=False)
+class GenericHead:
+    """The generic head: mesh, parts, landmarks and expression blendshapes.
+
+    Attributes
+    ----------
+    mesh : Mesh (no UVs: a head from photos gets its own atlas)
+    parts : part name -> (n,) vertex indices
+    landmark_triangles, landmark_barycentric : (478,), (478, 3): MediaPipe landmark ``i`` on the
+        surface (use :meth:`landmarks` for positions on any deformed copy)
+    shapes : expression name -> (V, 3) sparse-stored delta, see :meth:`shape`
+    """
+
+    mesh: Mesh
+    parts: dict
+    landmark_triangles: np.ndarray
+    landmark_barycentric: np.ndarray
+    shape_names: tuple
+    _shapes: dict
+
+    def landmarks(self, vertices: np.ndarray | None = None) -> np.ndarray:
+        """(478, 3) landmark positions on the head (or on ``vertices``, a deformed copy)."""
+        v = self.mesh.vertices if vertices is None else np.asarray(vertices, dtype=np.float64)
+        corners = v[self.mesh.faces[self.landmark_triangles]]  # (478, 3, 3)
+        return np.einsum("lk,lkd->ld", self.landmark_barycentric, corners)
+
+    def landmark_matrix(self) -> sp.csr_matrix:
+        """(478, V) sparse matrix with ``landmarks(v) == L @ v``."""
+        rows = np.repeat(np.arange(478), 3)
+        cols = self.mesh.faces[self.landmark_triangles].ravel()
+        return sp.csr_matrix((self.landmark_barycentric.ravel(), (rows, cols)), shape=(478, self.mesh.n_vertices))
+
+    def shape(self, name: str) -> np.ndarray:
+        """(V, 3) delta of one expression blendshape (e.g. ``jawOpen``, ``mouthSmile_L``)."""
+        rows, delta = self._shapes[name]
+        out = np.zeros((self.mesh.n_vertices, 3))
+        out[rows] = delta
+        return out
+
+    def part_of(self) -> np.ndarray:
+        """(V,) index into ``list(parts)`` of each vertex's part."""
+        out = np.zeros(self.mesh.n_vertices, dtype=np.int64)
+        for k, idx in enumerate(self.parts.values()):
+            out[idx] = k
+        return out
+
+
+@lru_cache(maxsize=1)
+def generic_head() -> GenericHead:
+    """The shipped generic head (loaded once per process; treat it as read-only)."""
+    with resources.files("faceanim").joinpath("assets", "generic_head.npz").open("rb") as fh:
+        data = dict(np.load(fh))
+    mesh = Mesh(data["vertices"].astype(np.float64), data["faces"].astype(np.int64),
+                polygon_sizes=data["polygon_sizes"].astype(np.int64), name="generic_head",
+                source="faceanim:generic_head")
+    parts = {str(n): np.arange(a, b) for n, (a, b) in zip(data["part_names"], data["part_ranges"])}
+    names = tuple(str(n) for n in data["shape_names"])
+    shapes = {n: (data[f"shape_rows_{n}"].astype(np.int64), data[f"shape_delta_{n}"].astype(np.float64))
+              for n in names}
+    return GenericHead(mesh, parts, data["landmark_triangles"].astype(np.int64),
+                       data["landmark_barycentric"].astype(np.float64), names, shapes)
