@@ -1,0 +1,524 @@
+"""A person's animatable full head from photos (Lee, Escher, Sannier & Magnenat-Thalmann 1999, s. 2).
+
+The paper's cloning half, step by step:
+
+1. **Feature points in each photo** (2.1): MediaPipe's 478 face-mesh landmarks on the front view
+   and on any side view it can read (three-quarter views); a true profile, where landmark
+   detectors fail, gives its midline points from the head's silhouette
+   (:mod:`faceanim.build.profile`). Points a user corrects in a JSON file replace detected ones.
+2. **Cameras and 3D points**: the paper assumes exactly orthogonal front and side photos. We
+   solve each photo's own scaled orthographic camera (:class:`~faceanim.build.camera.ViewCamera`)
+   and the 3D points together, alternating two linear least-squares steps (points given the
+   cameras: a triangulation, with the generic head as a weak prior that fills what no photo sees,
+   e.g. depth from a single front photo; cameras given the points: an affine fit projected onto
+   a scaled rotation). The MPEG-4 feature points (FDPs) are read off the 3D landmarks.
+3. **Head modification** (2.1.2): the generic head (:mod:`faceanim.build.generic_head`) is moved
+   by a global affine fit and then warped onto the 3D points by **Dirichlet free-form
+   deformation** (Sibson coordinates, with the paper's 27 extra points around the head) or, as the
+   alternative, the thin-plate spline of the RBF core. Eyeballs and teeth move as rigid bodies
+   (rotation, translation, uniform scale) fitted to where the warp takes them: scaled, not warped.
+4. **Expression off**: a photo that smiles or opens its mouth would give a head whose rest pose
+   smiles. The generic head's own blendshapes (jaw open, smile, lip raise/lower, stretch, pucker,
+   funnel) are fitted to the photo's mouth first; the texture is taken on the head *with* that
+   expression (lips sample lips, not teeth), and the head is returned *without* it.
+5. **Seamless texture** (2.2): :mod:`faceanim.build.texture` (views resampled into one atlas,
+   split along feature lines, mirrored for an unseen side, blended with a Laplacian pyramid).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from faceanim.build.camera import ViewCamera
+from faceanim.errors import FaceAnimError, InputFileError, LandmarkError, shown
+
+# the face mesh's 468 surface points (468..477 are the irises, which sit on the eyeballs)
+SURFACE_LANDMARKS = np.arange(468)
+OUTER_EYE_CORNERS = (33, 263)
+# photos: the largest side we read (a phone photo is ~4000 px; detection works on far less)
+MAX_PHOTO_SIDE = 8192
+MAX_PHOTO_PIXELS = 40_000_000
+# a front photo turned more than this (degrees of yaw) is not a front view
+MAX_FRONT_YAW = 25.0
+# a side photo turned further than this goes through the profile silhouette (the face mesh's
+# landmarks are unreliable there)
+PROFILE_YAW = 60.0
+# the 95th percentile of a side view's reprojection errors (inter-ocular distances) beyond which the
+# views cannot show one head: one man's front and three-quarter views 0.010-0.012, another
+# person's front with his three-quarter views 0.020-0.024 (multiview-photos, FaceWarehouse)
+DISAGREEMENT = 0.017
+# a side photo must turn the head at least this far from the front one (degrees of yaw)
+MIN_SIDE_TURN = 15.0
+# the generic-head prior's weight against one view's pixels (per point, relative units)
+PRIOR_WEIGHT = 0.02
+# where a landmark faces away from a camera it is occluded in that view: cos(angle) below this
+VISIBLE_COS = 0.15
+# the generic head's blendshapes that a photo's expression is fitted with (then taken off)
+EXPRESSION_SHAPES = ("jawOpen", "mouthSmile_L", "mouthSmile_R", "mouthUpperUp_L", "mouthUpperUp_R",
+                     "mouthLowerDown_L", "mouthLowerDown_R", "mouthStretch_L", "mouthStretch_R",
+                     "mouthFunnel", "mouthPucker", "mouthClose")
+# landmarks the expression is fitted on: lips, mouth corners, chin
+MOUTH_LANDMARKS = (0, 13, 14, 17, 37, 39, 40, 61, 78, 80, 81, 82, 84, 87, 88, 91, 95, 146, 178, 181, 185,
+                   191, 267, 269, 270, 291, 308, 310, 311, 312, 314, 317, 318, 321, 324, 375, 402, 405,
+                   409, 415, 152, 148, 377, 176, 400)
+EXTRA_POINTS = ("head_top", "head_back")
+
+
+@dataclass
+class PhotoView:
+    """One photo and the 2D points found in it (pixels, x right, y down).
+
+    ``points``: MediaPipe landmark index -> (2,) pixel; ``extra``: named points with no landmark
+    (``head_top``, ``head_back`` on a profile); ``role``: "front" or "side"; ``profile``: True
+    when the points came from the silhouette (a true profile).
+    """
+
+    name: str
+    image: np.ndarray
+    role: str
+    points: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+    profile: bool = False
+    facing: int = 0
+    mediapipe: np.ndarray | None = None  # (478, 3) MediaPipe's own 3D estimate, pixels
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return int(self.image.shape[1]), int(self.image.shape[0])
+
+
+# ---------------------------------------------------------------------------------------- reading
+def read_photo(path: str | os.PathLike, what: str = "photo") -> np.ndarray:
+    """An RGB photo as (H, W, 3) uint8, turned upright by its EXIF orientation."""
+    from PIL import Image, ImageOps, UnidentifiedImageError
+
+    p = Path(path)
+    if not p.is_file():
+        if p.is_dir():
+            raise InputFileError(f"{what} '{shown(p)}' is a folder; give an image file (JPEG or PNG)")
+        raise InputFileError(f"{what} '{shown(p)}' does not exist; check the path")
+    Image.MAX_IMAGE_PIXELS = MAX_PHOTO_PIXELS
+    try:
+        with Image.open(p) as im:
+            w, h = im.size
+            if max(w, h) > MAX_PHOTO_SIDE or w * h > MAX_PHOTO_PIXELS:
+                raise InputFileError(f"{what} '{shown(p)}' is {w}x{h} pixels; give at most "
+                                     f"{MAX_PHOTO_SIDE} pixels a side (scale it down first)")
+            if min(w, h) < 32:
+                raise InputFileError(f"{what} '{shown(p)}' is {w}x{h} pixels; a face needs at least 32 a side")
+            im = ImageOps.exif_transpose(im)
+            rgb = np.asarray(im.convert("RGB"), dtype=np.uint8).copy()
+    except InputFileError:
+        raise
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError, Image.DecompressionBombError):
+        raise InputFileError(f"{what} '{shown(p)}' is not a readable image (corrupt or not JPEG/PNG); "
+                             "give a JPEG or PNG photo") from None
+    return rgb
+
+
+# ---------------------------------------------------------------------------------------- detection
+def detect_view(image: np.ndarray, name: str, role: str, generic_lm: np.ndarray | None = None) -> PhotoView:
+    """Find the feature points of one photo: face-mesh landmarks, or for a side photo turned too
+    far for them (a true profile) the midline points of the head's silhouette."""
+    from faceanim.face.landmarks import detect_landmarks_in_image
+
+    h, w = image.shape[:2]
+    view = None
+    try:
+        lm = detect_landmarks_in_image(image, scales=(1.0,))
+    except LandmarkError:
+        lm = None
+    if lm is not None:
+        pix = np.c_[lm[:, 0] * w, lm[:, 1] * h]
+        mp3 = np.c_[lm[:, 0] * w, lm[:, 1] * h, lm[:, 2] * w]
+        view = PhotoView(name, image, role, {i: pix[i] for i in range(478)}, {}, False, 0, mp3)
+        if role == "front" or generic_lm is None or abs(initial_camera(view, generic_lm).yaw_degrees) < PROFILE_YAW:
+            return view
+    if role == "side":
+        from faceanim.build.profile import profile_points
+
+        try:
+            prof = profile_points(image)
+        except LandmarkError as exc:
+            raise LandmarkError(f"side photo '{shown(name)}': {exc}") from None
+        return PhotoView(name, image, role, {int(k): np.asarray(v, float) for k, v in prof.points.items()},
+                         {k: np.asarray(v, float) for k, v in prof.extra.items()}, True, prof.facing)
+    raise LandmarkError(f"no face found in the {role} photo '{shown(name)}'; give a photo where the face is "
+                        "lit, sharp and fills a good part of the frame")
+
+
+# ---------------------------------------------------------------------------------------- corrections
+def apply_corrections(views: list[PhotoView], spec: object, source: str = "points file") -> None:
+    """Replace detected 2D points by a user's: ``{"front": {"9.3": [x, y], ...}, "side": {...}}``.
+
+    Keys name the views ("front", "side", "side2" for a second side photo); points are named by
+    MPEG-4 FDP ("9.3", the nose tip), by MediaPipe landmark ("mp:4") or as ``head_top`` /
+    ``head_back``; values are pixels (x right, y down).
+    """
+    from faceanim.face.fdp import fdp_spec
+
+    fdps = fdp_spec()["points"]
+    if not isinstance(spec, dict):
+        raise InputFileError(f"{source} must hold an object like {{\"front\": {{\"9.3\": [x, y]}}}}")
+    by_key = {"front": [v for v in views if v.role == "front"]}
+    sides = [v for v in views if v.role == "side"]
+    for k, v in enumerate(sides):
+        by_key["side" if k == 0 else f"side{k + 1}"] = [v]
+    for key, points in spec.items():
+        if key not in by_key or not by_key[key]:
+            raise InputFileError(f"{source}: unknown view '{shown(key)}'; use "
+                                 + ", ".join(k for k in by_key if by_key[k]))
+        view = by_key[key][0]
+        if not isinstance(points, dict):
+            raise InputFileError(f"{source}: '{shown(key)}' must map point names to [x, y] pixels")
+        w, h = view.size
+        for name, xy in points.items():
+            ok = isinstance(xy, (list, tuple)) and len(xy) == 2 and all(
+                isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in xy)
+            if not ok or not (-w <= xy[0] <= 2 * w and -h <= xy[1] <= 2 * h):
+                raise InputFileError(f"{source}: point '{shown(name)}' of '{shown(key)}' must be [x, y] pixels "
+                                     f"inside the {w}x{h} photo")
+            p = np.array(xy, dtype=np.float64)
+            if name in EXTRA_POINTS:
+                view.extra[name] = p
+            elif name in fdps:
+                for i in fdps[name]:
+                    view.points[int(i)] = p
+            elif isinstance(name, str) and name.startswith("mp:") and name[3:].isdigit() and int(name[3:]) < 478:
+                view.points[int(name[3:])] = p
+            else:
+                raise InputFileError(f"{source}: unknown point '{shown(name)}'; name MPEG-4 feature points "
+                                     "(e.g. 9.3, 2.1, 8.4), MediaPipe landmarks as mp:N (0..477), "
+                                     "head_top or head_back")
+
+
+# ---------------------------------------------------------------------------------------- geometry
+def similarity(src: np.ndarray, dst: np.ndarray, scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+    """Least-squares ``dst ~ s * R @ src + t`` (Umeyama 1991): returns (s, R, t)."""
+    ms, md = src.mean(0), dst.mean(0)
+    a, b = src - ms, dst - md
+    u, sv, vt = np.linalg.svd(b.T @ a)
+    d = np.sign(np.linalg.det(u @ vt))
+    fix = np.diag([1.0, 1.0, d])
+    r = u @ fix @ vt
+    s = float((sv * np.diag(fix)).sum() / (a ** 2).sum()) if scale else 1.0
+    return s, r, md - s * r @ ms
+
+
+def fit_camera(points3d: np.ndarray, pixels: np.ndarray, size, weights=None) -> ViewCamera:
+    """The scaled orthographic camera that best maps ``points3d`` onto ``pixels``."""
+    w = np.ones(len(pixels)) if weights is None else weights
+    x = np.c_[points3d, np.ones(len(points3d))]
+    sw = np.sqrt(w)[:, None]
+    m, *_ = np.linalg.lstsq(x * sw, pixels * sw, rcond=None)  # (4, 2): affine camera
+    a = (m[:3].T) * np.array([[1.0], [-1.0]])  # s * R[:2]
+    u, sv, vt = np.linalg.svd(a, full_matrices=False)
+    r2 = u @ vt
+    s = float(sv.mean())
+    rot = np.vstack([r2, np.cross(r2[0], r2[1])])
+    proj = s * (points3d @ rot.T)[:, :2] * np.array([1.0, -1.0])
+    offset = ((pixels - proj) * w[:, None]).sum(0) / w.sum()
+    return ViewCamera(rot, s, offset, tuple(size))
+
+
+def initial_camera(view: PhotoView, generic_lm: np.ndarray) -> ViewCamera:
+    """A first camera: from MediaPipe's own 3D landmarks (a rotation by Procrustes), or for a
+    profile from its facing direction."""
+    if view.mediapipe is not None:
+        mp = view.mediapipe * np.array([1.0, -1.0, -1.0])  # x right, y up, z towards the camera
+        s, r, _ = similarity(generic_lm[SURFACE_LANDMARKS], mp[SURFACE_LANDMARKS])
+        cam = ViewCamera(r, s, np.zeros(2), view.size)
+        idx = np.array(sorted(view.points))
+        pix = np.stack([view.points[i] for i in idx])
+        off = (pix - cam.project(generic_lm[idx])).mean(0)
+        return ViewCamera(r, s, off, view.size)
+    # a profile: nose to the image's left when the subject's left faces the camera (yaw +90)
+    yaw = np.radians(90.0 if view.facing < 0 else -90.0)
+    c, s_ = np.cos(yaw), np.sin(yaw)
+    rot = np.array([[c, 0.0, -s_], [0.0, 1.0, 0.0], [s_, 0.0, c]])
+    idx = np.array(sorted(view.points))
+    pts = generic_lm[idx]
+    pix = np.stack([view.points[i] for i in idx])
+    return fit_camera_fixed_rotation(pts, pix, rot, view.size)
+
+
+def fit_camera_fixed_rotation(points3d, pixels, rot, size) -> ViewCamera:
+    q = (points3d @ rot.T)[:, :2] * np.array([1.0, -1.0])
+    qc, pc = q - q.mean(0), pixels - pixels.mean(0)
+    s = float((qc * pc).sum() / max((qc ** 2).sum(), 1e-12))
+    return ViewCamera(rot, s, pixels.mean(0) - s * q.mean(0), tuple(size))
+
+
+@dataclass
+class Reconstruction:
+    """Cameras and 3D points from photos, in the generic head's frame and size.
+
+    ``points``: (478 + extras, 3) 3D positions (rows 478.. the ``extra`` names in order);
+    ``observed``: per view, (n,) row indices seen in it; ``errors``: per view, (n,) reprojection
+    errors in inter-ocular distances.
+    """
+
+    points: np.ndarray
+    cameras: list[ViewCamera]
+    observed: list[np.ndarray]
+    errors: list[np.ndarray]
+    iod: float
+
+
+def _observations(view: PhotoView, extra_rows: dict) -> tuple[np.ndarray, np.ndarray]:
+    rows = [i for i in sorted(view.points) if i < 468]
+    pix = [view.points[i] for i in rows]
+    for name, p in sorted(view.extra.items()):
+        if name in extra_rows:
+            rows.append(extra_rows[name])
+            pix.append(p)
+    return np.array(rows, dtype=np.int64), np.array(pix, dtype=np.float64).reshape(-1, 2)
+
+
+def reconstruct(views: list[PhotoView], prior: np.ndarray, normals: np.ndarray, iterations: int = 20) -> Reconstruction:
+    """Solve each photo's camera and the 3D points together (see the module docstring).
+
+    ``prior``: (P, 3) the generic head's points (478 landmarks + extras); ``normals``: their
+    surface normals (a landmark facing away from a camera is occluded there and not used).
+    """
+    n = len(prior)
+    extra_rows = {name: 478 + k for k, name in enumerate(EXTRA_POINTS)}
+    obs = [_observations(v, extra_rows) for v in views]
+    cams = [initial_camera(v, prior) for v in views]
+    # a three-quarter view sees only one side: drop the landmarks facing away from its camera
+    keep = []
+    for v, cam, (rows, _) in zip(views, cams, obs):
+        if v.role == "side" and not v.profile:
+            keep.append(normals[rows] @ cam.direction > VISIBLE_COS)
+        else:
+            keep.append(np.ones(len(rows), bool))
+    obs = [(rows[k], pix[k]) for (rows, pix), k in zip(obs, keep)]
+    x = prior.copy()
+    for _ in range(iterations):
+        # the prior: the generic points under the similarity (plus a depth scale) that fits x
+        s, r, t = similarity(prior, x)
+        base = s * prior @ r.T + t
+        # points given the cameras: per point, sum_k |P_k X + o_k - x_k|^2 + lam |X - base|^2
+        lam = PRIOR_WEIGHT * np.mean([c.scale for c in cams]) ** 2
+        a = np.repeat(lam * np.eye(3)[None], n, axis=0)
+        b = lam * base.copy()
+        for cam, (rows, pix) in zip(cams, obs):
+            m = cam.matrix  # (2, 3)
+            a[rows] += m.T @ m
+            b[rows] += (pix - cam.offset) @ m
+        x = np.linalg.solve(a, b[..., None])[..., 0]
+        # gauge: back into the generic head's frame and size
+        s, r, t = similarity(x[SURFACE_LANDMARKS], prior[SURFACE_LANDMARKS])
+        x = s * x @ r.T + t
+        # cameras given the points
+        cams = [fit_camera(x[rows], pix, v.size) for v, (rows, pix) in zip(views, obs)]
+        # the profile keeps its rotation about the vertical axis only when it has few points
+    iod = float(np.linalg.norm(x[OUTER_EYE_CORNERS[0]] - x[OUTER_EYE_CORNERS[1]]))
+    errors = [np.linalg.norm(cam.project(x[rows]) - pix, axis=1) / (cam.scale * iod)
+              for cam, (rows, pix) in zip(cams, obs)]
+    return Reconstruction(x, cams, [rows for rows, _ in obs], errors, iod)
+
+
+def check_views(views: list[PhotoView], rec: Reconstruction) -> None:
+    """Refuse a front photo that is not frontal, a side photo that is, and views that cannot show
+    one head (the 95th percentile of a side view's reprojection errors beyond ``DISAGREEMENT``)."""
+    front = rec.cameras[0]
+    if abs(front.yaw_degrees) > MAX_FRONT_YAW:
+        raise LandmarkError(
+            f"the front photo '{shown(views[0].name)}' shows the head turned {abs(front.yaw_degrees):.0f} degrees; "
+            "give a frontal photo as --front (side and three-quarter views go to --side)")
+    for v, cam, err in zip(views[1:], rec.cameras[1:], rec.errors[1:]):
+        turn = abs(cam.yaw_degrees - front.yaw_degrees)
+        if turn < MIN_SIDE_TURN:
+            raise LandmarkError(
+                f"the side photo '{shown(v.name)}' shows the head from the front (turned {turn:.0f} degrees from the "
+                f"front photo, at least {MIN_SIDE_TURN:.0f} needed); give a profile or three-quarter view")
+        p95 = float(np.percentile(err, 95)) if len(err) else 0.0
+        if p95 > DISAGREEMENT:
+            raise LandmarkError(
+                f"the photos do not agree: '{shown(v.name)}' is up to {p95:.3f} inter-ocular distances off the head "
+                f"rebuilt from all views (at most {DISAGREEMENT}); give photos of one person with one expression, "
+                "or fix a bad point with --points")
+
+
+# ---------------------------------------------------------------------------------------- the head
+def extra_vertices(head) -> dict[str, int]:
+    """Generic-head vertices of the named points a profile shows that are not landmarks."""
+    v = head.mesh.vertices
+    skin = head.parts["skin"]
+    lm = head.landmarks()
+    mid = skin[np.abs(v[skin, 0]) < 0.01]
+    top = int(mid[np.argmax(v[mid, 1])])
+    eye_y = lm[list(OUTER_EYE_CORNERS), 1].mean()
+    band = mid[np.abs(v[mid, 1] - eye_y) < 0.02]
+    back = int(band[np.argmin(v[band, 2])])
+    return {"head_top": top, "head_back": back}
+
+
+def prior_points(head) -> tuple[np.ndarray, np.ndarray]:
+    """The generic head's points (478 landmarks + extras) and their unit surface normals."""
+    from faceanim.face.mesh import vertex_normals
+
+    nv = vertex_normals(head.mesh.vertices, head.mesh.faces)
+    ex = extra_vertices(head)
+    lm = head.landmarks()
+    corners = nv[head.mesh.faces[head.landmark_triangles]]
+    nl = np.einsum("lk,lkd->ld", head.landmark_barycentric, corners)
+    pts = np.vstack([lm, head.mesh.vertices[[ex[n] for n in EXTRA_POINTS]]])
+    nrm = np.vstack([nl, nv[[ex[n] for n in EXTRA_POINTS]]])
+    return pts, nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+
+
+def fit_affine(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(3, 4) least-squares affine map ``dst ~ A[:, :3] @ src + A[:, 3]``."""
+    x = np.c_[src, np.ones(len(src))]
+    m, *_ = np.linalg.lstsq(x, dst, rcond=None)
+    return m.T
+
+
+def apply_affine(a: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ a[:, :3].T + a[:, 3]
+
+
+def fit_expression(head, target: np.ndarray, names=EXPRESSION_SHAPES, ridge: float = 1e-3) -> dict[str, float]:
+    """Weights in [0, 1] of the generic head's expression blendshapes that best explain the mouth
+    of ``target`` (478 landmarks in the head's frame), after a global affine fit."""
+    from scipy.optimize import lsq_linear
+
+    lmat = head.landmark_matrix()
+    g = head.landmarks()
+    a = fit_affine(g[SURFACE_LANDMARKS], target[SURFACE_LANDMARKS])
+    rows = np.array(MOUTH_LANDMARKS)
+    cols = np.stack([((lmat @ head.shape(n))[rows] @ a[:, :3].T).ravel() for n in names], axis=1)
+    resid = (target[rows] - apply_affine(a, g[rows])).ravel()
+    scale = np.linalg.norm(cols, axis=0).mean()
+    lhs = np.vstack([cols, np.sqrt(ridge) * scale * np.eye(len(names))])
+    rhs = np.r_[resid, np.zeros(len(names))]
+    w = lsq_linear(lhs, rhs, bounds=(0.0, 1.0)).x
+    return {n: float(v) for n, v in zip(names, w)}
+
+
+@dataclass
+class FittedHead:
+    """The generic head fitted to a person: ``vertices`` (neutral, rigid parts placed),
+    ``expressed`` (with the photo's expression: what the photos show, for the texture),
+    ``expression`` the weights taken off, ``affine`` the global part of the fit."""
+
+    vertices: np.ndarray
+    expressed: np.ndarray
+    expression: dict
+    affine: np.ndarray
+
+
+RIGID_PARTS = {"eyeball_L": ("eyeball_L",), "eyeball_R": ("eyeball_R",), "mouth": ("teeth", "gums_tongue")}
+
+
+# the nose ridge and the eyes' inner corners, which the FDPs leave out (the paper regrets "too few
+# points on nose ... no parameter on the central line between the eyes")
+EXTRA_CONTROLS = (168, 6, 197, 195, 5, 1, 9, 151, 133, 362)
+# FDPs on the inner lip lines coincide in a closed mouth but not in an open one: as controls they
+# would tear the lips apart, so the lips are steered by their outer line (8.x) and the expression
+INNER_LIP_FDPS = ("2.2", "2.3", "2.4", "2.5", "2.6", "2.7", "2.8", "2.9", "3.5", "3.6")
+
+
+def control_landmarks() -> np.ndarray:
+    """The landmarks that steer the generic head: the MPEG-4 feature points (FDPs) a photo shows,
+    the face outline and the nose ridge, sorted."""
+    from faceanim.face.fdp import fdp_spec
+    from faceanim.face.landmarks import FACE_OVAL
+
+    fdps = fdp_spec()["points"]
+    rows = {int(i) for name, ids in fdps.items() if name not in INNER_LIP_FDPS for i in ids}
+    rows |= set(FACE_OVAL) | set(EXTRA_CONTROLS)
+    return np.array(sorted(rows), dtype=np.int64)
+
+
+def control_rows() -> np.ndarray:
+    """Rows of the reconstruction that steer the head: :func:`control_landmarks` and the extras."""
+    return np.r_[control_landmarks(), 478 + np.arange(len(EXTRA_POINTS))]
+
+
+def head_deformer(head, method: str = "dffd"):
+    """The bound deformer of the generic head: control offsets -> vertex offsets (V, H) as a
+    :class:`~faceanim.deform.base.LinearDeformer` over the control points of :func:`control_rows`."""
+    prior, _ = prior_points(head)
+    sites = prior[control_rows()]
+    v = head.mesh.vertices
+    if method == "dffd":
+        from faceanim.deform.ffd import dirichlet_ffd, enclosing_points
+
+        box = enclosing_points(np.vstack([v, sites]))
+        full = dirichlet_ffd(np.vstack([sites, box]), v)
+        return full, len(sites)
+    if method == "rbf":
+        return None, len(sites)
+    raise FaceAnimError(f"unknown head fitting method '{shown(method)}'; choose dffd or rbf")
+
+
+def fit_head(head, rec: Reconstruction, method: str = "dffd", keep_expression: bool = False) -> FittedHead:
+    """Deform the generic head onto the reconstructed points (see the module docstring, 3-4)."""
+    g = head.mesh.vertices
+    x = rec.points
+    expr = {} if keep_expression else fit_expression(head, x[:478])
+    delta = sum((w * head.shape(n) for n, w in expr.items() if w > 0), np.zeros_like(g))
+    ge = g + delta
+    prior, _ = prior_points(head)
+    ex = extra_vertices(head)
+    rows = control_rows()
+    sites_e = np.vstack([head.landmarks(ge), ge[[ex[n] for n in EXTRA_POINTS]]])[rows]
+    a = fit_affine(head.landmarks(ge)[SURFACE_LANDMARKS], x[SURFACE_LANDMARKS])
+    resid = x[rows] - apply_affine(a, sites_e)
+    if method == "dffd":
+        deformer, n_sites = _cached_deformer(head)
+        offsets = np.zeros((deformer.n_handles, 3))
+        offsets[:n_sites] = resid
+        warp = deformer.displacements(offsets)
+    elif method == "rbf":
+        from faceanim.deform.rbf import landmark_tps
+
+        sites = prior[rows]
+        tps = landmark_tps(sites, sites + resid, "head control points", merge_repeated=True)
+        warp = tps(g) - g
+    else:
+        raise FaceAnimError(f"unknown head fitting method '{shown(method)}'; choose dffd or rbf")
+    neutral = apply_affine(a, g) + warp
+    expressed = apply_affine(a, ge) + warp
+    for idx, near in rigid_groups(head):
+        # each rigid part follows the skin around it (eyelids and socket; lips and mouth socket)
+        s, r, t = similarity(g[near], neutral[near])
+        neutral[idx] = s * g[idx] @ r.T + t
+        s, r, t = similarity(ge[near], expressed[near])
+        expressed[idx] = s * ge[idx] @ r.T + t
+    return FittedHead(neutral, expressed, expr, a)
+
+
+# skin within this distance (metres) of a rigid part is the part's socket: the part follows it
+SOCKET_REACH = 0.006
+
+
+def rigid_groups(head) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(part vertices, the skin vertices around them) for the eyeballs and the teeth with gums."""
+    from scipy.spatial import cKDTree
+
+    v = head.mesh.vertices
+    skin = head.parts["skin"]
+    out = []
+    for group in RIGID_PARTS.values():
+        idx = np.concatenate([head.parts[p] for p in group])
+        d, _ = cKDTree(v[idx]).query(v[skin], distance_upper_bound=SOCKET_REACH)
+        out.append((idx, skin[np.isfinite(d)]))
+    return out
+
+
+_DEFORMERS: dict = {}
+
+
+def _cached_deformer(head):
+    key = id(head)
+    if key not in _DEFORMERS:
+        _DEFORMERS[key] = head_deformer(head, "dffd")
+    return _DEFORMERS[key]
