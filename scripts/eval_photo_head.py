@@ -1,0 +1,160 @@
+"""How well does a head from photos match the real head? (Lee et al. 1999, section 2, measured.)
+
+1. Known truth: each FaceWarehouse scan (a real, textured head) is rendered from the front and
+   from the side (a profile at 90 degrees, or a three-quarter view); the head is rebuilt from
+   those two renders alone and compared with the scan: surface error over the face (mean
+   distance from the scan's face vertices to the rebuilt skin, in inter-ocular distances) and
+   the error per MPEG-4 feature point; the baseline is the generic head with no fitting
+   (placed by the same similarity on the landmarks).
+2. Real photos (``multiview-photos``): reprojection error of the landmarks in each view after
+   the rebuild, and a contact sheet (photo | rebuilt head from the same camera).
+
+Usage: ``python scripts/eval_photo_head.py ../shared/data [--poses 0,1,2] [--sheet out.png]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+from faceanim.build.generic_head import generic_head  # noqa: E402
+from faceanim.build.photo import (  # noqa: E402
+    fit_head,
+    load_views,
+    prior_points,
+    reconstruct,
+    similarity,
+)
+from faceanim.face.face import Face, landmarks_478  # noqa: E402
+from faceanim.face.landmarks import detect_landmarks  # noqa: E402
+from faceanim.face.fdp import fdp_spec  # noqa: E402
+from faceanim.io.meshio import load_mesh  # noqa: E402
+from faceanim.render import OffscreenRenderer  # noqa: E402
+
+SIZE = 512
+
+
+def render(mesh, yaw: float) -> np.ndarray:
+    with OffscreenRenderer(mesh, size=(SIZE, SIZE), yaw=yaw, parallel=True, background=(0.5, 0.5, 0.5)) as r:
+        return r.render()
+
+
+def surface_error(truth: Face, rebuilt_vertices: np.ndarray, head, lm_rebuilt: np.ndarray) -> tuple[float, dict]:
+    """Mean distance (IOD) from the scan's face vertices to the rebuilt skin, and per FDP."""
+    from faceanim.face.mesh import Mesh
+
+    # place the rebuilt head on the scan: similarity on the 468 surface landmarks
+    s, r, t = similarity(lm_rebuilt[:468], truth.landmarks[:468])
+    v = s * rebuilt_vertices @ r.T + t
+    lm = s * lm_rebuilt @ r.T + t
+    skin = head.parts["skin"]
+    keep = np.isin(head.mesh.faces, skin).all(axis=1)
+    rebuilt = Mesh(v, head.mesh.faces[keep])
+    face_v = truth.mesh.vertices[truth.face_region]
+    closest, _, _ = rebuilt.closest_points(face_v)
+    iod = truth.frame.iod
+    err = float(np.linalg.norm(closest - face_v, axis=1).mean() / iod)
+    per = {}
+    for name, ids in fdp_spec()["points"].items():
+        if name in ("3.5", "3.6"):
+            continue
+        per[name] = float(np.linalg.norm(lm[ids].mean(0) - truth.landmarks[ids].mean(0)) / iod)
+    return err, per
+
+
+def known_truth(data: Path, poses: list[int], side_yaw: float, methods=("dffd", "rbf")) -> None:
+    methods = tuple(methods)
+    head = generic_head()
+    prior, normals = prior_points(head)
+    rows = []
+    fdp_sum: dict = {}
+    for k in poses:
+        scan = load_mesh(data / "facewarehouse-tester1" / f"pose_{k}.obj")
+        truth = Face(scan, landmarks_478(scan, detect_landmarks(scan)))
+        front, side = render(scan, 0.0), render(scan, side_yaw)
+        t = time.perf_counter()
+        views = load_views(("front", front), [("side", side)], prior[:478])
+        rec = reconstruct(views, prior, normals)
+        t_rec = time.perf_counter() - t
+        base_err, base_fdp = surface_error(truth, head.mesh.vertices, head, head.landmarks())
+        row = {"pose": k, "generic (no fit)": base_err, "profile": views[1].profile}
+        fdp_sum.setdefault("generic (no fit)", []).append(base_fdp)
+        for m in methods:
+            t = time.perf_counter()
+            fh = fit_head(head, rec, m)
+            row[m] = surface_error(truth, fh.vertices, head, head.landmarks(fh.vertices))[0]
+            fdp_sum.setdefault(m, []).append(surface_error(truth, fh.vertices, head, head.landmarks(fh.vertices))[1])
+            row[f"{m} s"] = time.perf_counter() - t + t_rec
+        rows.append(row)
+        print(row, flush=True)
+    cols = ["generic (no fit)", *methods]
+    print(f"\nSurface error over the face (mean, inter-ocular distances), front + side at {side_yaw:g} degrees")
+    print("| pose | " + " | ".join(cols) + " |")
+    print("|---|" + "---|" * len(cols))
+    for r in rows:
+        print(f"| {r['pose']} | " + " | ".join(f"{r[c]:.4f}" for c in cols) + " |")
+    print("| mean | " + " | ".join(f"{np.mean([r[c] for r in rows]):.4f}" for c in cols) + " |")
+    print("\nPer feature point (mean over poses, IOD):")
+    names = list(fdp_sum[cols[0]][0])
+    print("| FDP | " + " | ".join(cols) + " |")
+    print("|---|" + "---|" * len(cols))
+    for n in names:
+        print(f"| {n} | " + " | ".join(f"{np.mean([d[n] for d in fdp_sum[c]]):.3f}" for c in cols) + " |")
+
+
+def real_photos(data: Path, sheet: Path | None) -> None:
+    from faceanim.build.photo import head_from_photos
+
+    d = data / "multiview-photos"
+    t = time.perf_counter()
+    ph = head_from_photos(d / "front.jpg", [d / "left.jpg", d / "right.jpg"])
+    total = time.perf_counter() - t
+    print("\nReal photos (multiview-photos): reprojection error per view (IOD)")
+    print("| view | yaw (deg) | points | median | 95th pct | max |")
+    print("|---|---|---|---|---|---|")
+    for v, cam, e in zip(ph.views, ph.reconstruction.cameras, ph.reconstruction.errors):
+        print(f"| {Path(v.name).name} | {cam.yaw_degrees:.1f} | {len(e)} | {np.median(e):.4f} | "
+              f"{np.percentile(e, 95):.4f} | {e.max():.4f} |")
+    print("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in ph.timings.items()) + f" (wall {total:.1f} s)")
+    if sheet is not None:
+        from PIL import Image
+
+        from faceanim.render.gl import OffscreenRenderer as R
+
+        tiles = []
+        for v, cam in zip(ph.views, ph.reconstruction.cameras):
+            img = v.image
+            h, w = img.shape[:2]
+            # the rebuilt head seen by the photo's own camera: render parallel along the camera axis
+            yaw = cam.yaw_degrees
+            with R(ph.mesh, size=(w, h), yaw=yaw, parallel=True, frame_vertices=ph.mesh.vertices[ph.parts["skin"]]) as r:
+                tiles.append(np.vstack([img, r.render()]))
+        Image.fromarray(np.hstack(tiles)).save(sheet)
+        print(f"contact sheet: {sheet}")
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("data", type=Path, help="the shared data folder (../shared/data)")
+    p.add_argument("--poses", default="0,1,2,3,4", help="FaceWarehouse poses to rebuild")
+    p.add_argument("--side-yaw", type=float, default=90.0, help="yaw of the side render (90: a profile)")
+    p.add_argument("--sheet", type=Path, help="write the real-photo contact sheet here (PNG)")
+    p.add_argument("--skip-truth", action="store_true")
+    p.add_argument("--methods", default="dffd,rbf", help="head modification methods to compare")
+    p.add_argument("--skip-photos", action="store_true")
+    args = p.parse_args(argv)
+    if not args.skip_truth:
+        known_truth(args.data, [int(k) for k in args.poses.split(",")], args.side_yaw, args.methods.split(","))
+    if not args.skip_photos:
+        real_photos(args.data, args.sheet)
+
+
+if __name__ == "__main__":
+    main()

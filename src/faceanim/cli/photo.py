@@ -1,0 +1,117 @@
+"""faceanim photo: a person's animatable full head from front and side photos (Lee et al. 1999)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from faceanim.cli.common import DEFAULT_SIZE, SIZE, CommandError, add_output, check_outputs, named_paths, report
+
+SUFFIXES = [".glb", ".obj", ".ply", ".png"]
+
+
+def photo_rig_shapes(face, head=None) -> dict[str, np.ndarray]:
+    """Every control faceanim has, as blendshapes of ``face``: FACS action units and the six
+    emotions (Erdogdu), MPEG-4 visemes and expressions (FAP rig), and, for a head built from the
+    generic head, its 53 ARKit-named expression shapes carried over by the fit."""
+    from faceanim.drivers.mpeg4 import expression_faps, fap_set, viseme_table
+    from faceanim.rig.mpeg4 import FapRig
+    from faceanim.rig.transfer import ExpressionTransfer, default_model
+
+    shapes = dict(ExpressionTransfer(face).rig(default_model(), sides=True).blendshape_dict())
+    fap = FapRig.build(face)
+    rest = face.mesh.vertices
+
+    def pose(values: dict[int, float]) -> np.ndarray:
+        curves = np.zeros((1, fap.n_controls))
+        for number, v in values.items():
+            curves[0, number - 1] = v
+        return fap.evaluate(curves)[0] - rest
+
+    for number, spec in sorted(viseme_table()["visemes"].items(), key=lambda kv: int(kv[0])):
+        if spec["faps"]:
+            shapes[f"viseme_{int(number):02d}"] = pose(fap_set(spec["faps"]))
+    for name in ("joy", "sadness", "anger", "fear", "disgust", "surprise"):
+        shapes[f"fap_{name}"] = pose(expression_faps(name))
+    if head is not None:
+        shapes.update(head)
+    return shapes
+
+
+def _cmd_photo(args) -> None:
+    from faceanim.build.photo import head_from_photos
+    from faceanim.io.meshio import save_mesh
+    from faceanim.render import render_png
+
+    out = Path(args.output)
+    if args.rig and out.suffix.lower() != ".glb":
+        raise CommandError("--rig writes morph targets, which only a .glb holds; give -o HEAD.glb")
+    if len(args.side or []) > 2:
+        raise CommandError("give --side at most twice (a left and a right view)")
+    check_outputs(args.output)
+    ph = head_from_photos(args.front, args.side or [], args.points, method=args.method,
+                          keep_expression=args.keep_expression, texture_size=args.texture_size)
+    suffix = out.suffix.lower()
+    face = ph.face()
+    if suffix == ".png":
+        from faceanim.render import OffscreenRenderer, save_png
+
+        views = []
+        for yaw in (0.0, 40.0, 90.0):
+            with OffscreenRenderer(face.mesh, size=(args.size, args.size), yaw=yaw, pitch=3.0,
+                                   frame_vertices=face.mesh.vertices[ph.parts["skin"]]) as r:
+                views.append(r.render())
+        written = [save_png(out, np.hstack(views))]
+    elif suffix == ".glb":
+        from faceanim.player import write_rig_gltf
+        from faceanim.rig.rig import Rig
+
+        shapes = {}
+        if args.rig:
+            shapes = photo_rig_shapes(face, arkit_shapes(ph))
+        rig = Rig.from_blendshapes(face.mesh, shapes)
+        if shapes:
+            curves = np.zeros((2, rig.n_controls))
+            written = [write_rig_gltf(rig, curves, out, fps=1.0, name="rest", names=rig.controls)]
+        else:
+            from faceanim.io.gltf import write_gltf
+
+            written = [write_gltf(out, face.mesh, {})]
+    else:
+        written = save_mesh(face.mesh, out, avoid=named_paths(args))
+    rec = ph.reconstruction
+    errs = ", ".join(f"{Path(v.name).name} {np.median(e):.3f}" for v, e in zip(ph.views, rec.errors))
+    print(f"views: {errs} (median reprojection error, inter-ocular distances); "
+          f"{ph.timings['total']:.1f} s")
+    report(written)
+
+
+def arkit_shapes(ph) -> dict[str, np.ndarray]:
+    """The generic head's 53 ARKit-named shapes on the fitted head (deltas carried over through
+    the fit's local linear part: the global affine)."""
+    from faceanim.build.generic_head import generic_head
+
+    head = generic_head()
+    lin = ph.fitted.affine[:, :3]
+    return {f"arkit_{n}": head.shape(n) @ lin.T for n in head.shape_names}
+
+
+def register(sub) -> None:
+    p = sub.add_parser("photo", help="a person's full head from a front photo and side photos: textured, "
+                                     "animatable (GLB with --rig: every control as a morph target)")
+    p.add_argument("--front", required=True, metavar="IMAGE", help="a frontal photo (JPEG or PNG)")
+    p.add_argument("--side", action="append", metavar="IMAGE",
+                   help="a profile or three-quarter photo; give it twice for left and right")
+    p.add_argument("--points", metavar="JSON",
+                   help='corrections: {"front": {"9.3": [x, y]}, "side": {"mp:4": [x, y]}} in pixels')
+    p.add_argument("--method", default="dffd", choices=["dffd", "rbf"],
+                   help="head modification: Dirichlet free-form deformation (the paper) or the thin-plate spline")
+    p.add_argument("--keep-expression", action="store_true",
+                   help="keep the photo's expression in the rest pose (default: fitted and taken off)")
+    p.add_argument("--texture-size", type=int, default=1024, help="texture atlas pixels per side (64..4096)")
+    p.add_argument("--rig", action="store_true",
+                   help="GLB: every control as a morph target (AUs, emotions, visemes, FAP expressions, ARKit)")
+    add_output(p, SUFFIXES)
+    p.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="PNG pixels per view (16..4096)")
+    p.set_defaults(func=_cmd_photo)
