@@ -34,6 +34,9 @@ ASSETS = ROOT / "src" / "faceanim" / "assets"
 PARTS = {"skin": (0, 14062), "gums_tongue": (14062, 17039), "teeth": (17039, 21451),
          "eyeball_L": (21451, 23021), "eyeball_R": (23021, 24591)}
 KEEP = 24591
+# MediaPipe's inner-lip points (the corners 78 and 308 excepted)
+UPPER_INNER_LIP = (191, 80, 81, 82, 13, 312, 311, 310, 415)
+LOWER_INNER_LIP = (95, 88, 178, 87, 14, 317, 402, 318, 324)
 CM = 0.01
 
 
@@ -71,6 +74,18 @@ def main(argv=None) -> None:
     lms = detect_landmarks(mesh)
     order = np.argsort(lms.indices)
     assert (lms.indices[order] == np.arange(478)).all()
+    tri, bary = lms.triangles[order].copy(), lms.barycentric[order].copy()
+    # the lips are closed: detection puts the upper and lower inner-lip points on one spot, and the
+    # ray lands on one lip. Attach each to its own lip: the lower lip is what jawOpen moves down.
+    drop = -(obj_vertices(args.ict / "jawOpen.obj")[:KEEP] * CM - vertices)[:, 1]
+    moving = drop > 0.5 * drop[faces].max()
+    lower_tri = moving[faces].all(axis=1)
+    upper_tri = (~moving[faces]).all(axis=1)
+    positions = lms.positions[order]
+    for group, allowed in ((LOWER_INNER_LIP, lower_tri), (UPPER_INNER_LIP, upper_tri)):
+        pos, _, t = mesh.closest_points(positions[list(group)], allowed)
+        tri[list(group)] = t
+        bary[list(group)] = mesh.barycentric(pos, t)
 
     shapes, names = {}, []
     for path in sorted(args.ict.glob("*.obj*")):
@@ -93,8 +108,8 @@ def main(argv=None) -> None:
         polygon_sizes=sizes[keep_poly].astype(np.int8),
         part_names=np.array(list(PARTS)),
         part_ranges=np.array(list(PARTS.values()), dtype=np.int32),
-        landmark_triangles=lms.triangles[order].astype(np.int32),
-        landmark_barycentric=lms.barycentric[order].astype(np.float32),
+        landmark_triangles=tri.astype(np.int32),
+        landmark_barycentric=bary.astype(np.float32),
         shape_names=np.array(names),
         **shapes,
     )

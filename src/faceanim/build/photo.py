@@ -42,8 +42,9 @@ OUTER_EYE_CORNERS = (33, 263)
 # photos: the largest side we read (a phone photo is ~4000 px; detection works on far less)
 MAX_PHOTO_SIDE = 8192
 MAX_PHOTO_PIXELS = 40_000_000
-# a front photo turned more than this (degrees of yaw) is not a front view
-MAX_FRONT_YAW = 25.0
+# a front photo turned more than this (degrees of yaw) is not a front view (multiview-photos:
+# front.jpg 0.1, the three-quarter views 24-35; FaceWarehouse's photos within 9)
+MAX_FRONT_YAW = 20.0
 # a side photo turned further than this goes through the profile silhouette (the face mesh's
 # landmarks are unreliable there)
 PROFILE_YAW = 60.0
@@ -72,6 +73,8 @@ MOUTH_LANDMARKS = (0, 13, 14, 17, 37, 39, 40, 61, 78, 80, 81, 82, 84, 87, 88, 91
                    191, 267, 269, 270, 291, 308, 310, 311, 312, 314, 317, 318, 321, 324, 375, 402, 405,
                    409, 415, 152, 148, 377, 176, 400)
 EXTRA_POINTS = ("head_top", "head_back")
+# a landmark that an expression shape moves less than this (metres) places the head for the fit
+STILL = 2e-4
 
 
 @dataclass
@@ -398,7 +401,9 @@ def fit_expression(head, target: np.ndarray, names=EXPRESSION_SHAPES, ridge: flo
 
     lmat = head.landmark_matrix()
     g = head.landmarks()
-    a = fit_affine(g[SURFACE_LANDMARKS], target[SURFACE_LANDMARKS])
+    moved = np.stack([np.linalg.norm((lmat @ head.shape(n))[:468], axis=1) for n in names]).max(0)
+    still = np.flatnonzero(moved < STILL)  # the landmarks no expression shape moves: the head's pose
+    a = fit_affine(g[still], target[still])
     rows = np.array(MOUTH_LANDMARKS)
     cols = np.stack([((lmat @ head.shape(n))[rows] @ a[:, :3].T).ravel() for n in names], axis=1)
     resid = (target[rows] - apply_affine(a, g[rows])).ravel()
@@ -588,7 +593,6 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
     import time
 
     from faceanim.build.generic_head import generic_head
-    from faceanim.build.texture import atlas_uv, bake_texture
     from faceanim.face.mesh import Mesh
     from faceanim.io.files import read_json
     from faceanim.limits import check_range
@@ -614,6 +618,8 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
     t = time.perf_counter()
     fitted = fit_head(head, rec, method, keep_expression)
     timings[f"head modification ({method})"] = time.perf_counter() - t
+    from faceanim.build.texture import atlas_uv, bake_texture
+
     t = time.perf_counter()
     faces = head.mesh.faces
     uv, face_uv = atlas_uv(fitted.vertices, faces, head.parts)
