@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from faceanim.build.generic_head import generic_head  # noqa: E402
+from faceanim.face.generic_head import generic_head  # noqa: E402
 from faceanim.build.photo import (  # noqa: E402
     fit_head,
     load_views,

@@ -14,7 +14,7 @@ import pytest
 
 from faceanim.build import photo as P
 from faceanim.build.camera import ViewCamera
-from faceanim.build.generic_head import generic_head
+from faceanim.face.generic_head import generic_head
 from faceanim.errors import FaceAnimError, InputFileError, LandmarkError
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -12,7 +12,7 @@ The paper's cloning half, step by step:
    cameras: a triangulation, with the generic head as a weak prior that fills what no photo sees,
    e.g. depth from a single front photo; cameras given the points: an affine fit projected onto
    a scaled rotation). The MPEG-4 feature points (FDPs) are read off the 3D landmarks.
-3. **Head modification** (2.1.2): the generic head (:mod:`faceanim.build.generic_head`) is moved
+3. **Head modification** (2.1.2): the generic head (:mod:`faceanim.face.generic_head`) is moved
    by a global affine fit and then warped onto the 3D points by **Dirichlet free-form
    deformation** (Sibson coordinates, with the paper's 27 extra points around the head) or, as the
    alternative, the thin-plate spline of the RBF core. Eyeballs and teeth move as rigid bodies
@@ -592,7 +592,7 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
     """
     import time
 
-    from faceanim.build.generic_head import generic_head
+    from faceanim.face.generic_head import generic_head
     from faceanim.face.mesh import Mesh
     from faceanim.io.files import read_json
     from faceanim.limits import check_range

@@ -90,7 +90,7 @@ def _cmd_photo(args) -> None:
 def arkit_shapes(ph) -> dict[str, np.ndarray]:
     """The generic head's 53 ARKit-named shapes on the fitted head (deltas carried over through
     the fit's local linear part: the global affine)."""
-    from faceanim.build.generic_head import generic_head
+    from faceanim.face.generic_head import generic_head
 
     head = generic_head()
     lin = ph.fitted.affine[:, :3]
