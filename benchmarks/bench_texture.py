@@ -87,7 +87,7 @@ def facewarehouse(out: Path, size: int) -> None:
     pixels = detect_landmarks_in_image(photo)[:, :2] * [w, h]
     cam = fit_camera(marks.positions, pixels, (w, h))
     parts = {"skin": np.arange(scan.n_vertices)}
-    truth = tx.bake_texture(scan.vertices, scan.faces, scan.uv, scan.face_uv, parts, [tx.PhotoView(photo, cam)],
+    truth = tx.bake_texture(scan.vertices, scan.faces, scan.uv, scan.face_uv, parts, [tx.BakeView(photo, cam)],
                             size=1024)
     scan = Mesh(scan.vertices, scan.faces, scan.uv, scan.face_uv, truth)
     save(out / "fw_truth_texture.png", truth)
@@ -99,8 +99,8 @@ def facewarehouse(out: Path, size: int) -> None:
     for yaw in (0, 90, -90):
         with OffscreenRenderer(scan, (512, 512), yaw=yaw, parallel=True) as r:
             c = tx.view_camera(r)
-            views["lit"].append(tx.PhotoView(r.render(), c))
-        views["unlit"].append(tx.PhotoView(unlit(scan, c), c))
+            views["lit"].append(tx.BakeView(r.render(), c))
+        views["unlit"].append(tx.BakeView(unlit(scan, c), c))
     save(out / "fw_photos.png", np.vstack([np.hstack([v.image for v in views[k]]) for k in ("unlit", "lit")]))
     with OffscreenRenderer(scan, (512, 512), yaw=45, parallel=True) as r:
         cam45 = tx.view_camera(r)
@@ -139,7 +139,7 @@ def ict(out: Path, size: int) -> None:
     views = []
     for yaw in (0, 90, -90):
         with OffscreenRenderer(head, (1024, 1024), yaw=yaw, parallel=True) as r:
-            views.append(tx.PhotoView(r.render(), tx.view_camera(r)))
+            views.append(tx.BakeView(r.render(), tx.view_camera(r)))
     t0 = time.perf_counter()
     uv, face_uv = tx.atlas_uv(v, f, parts)
     t_atlas = time.perf_counter() - t0

@@ -7,7 +7,6 @@ front and the sides, baked into our atlas and rendered again from 45 degrees aga
 of the original.
 """
 
-import time
 
 import numpy as np
 import pytest
@@ -116,7 +115,7 @@ def test_atlas_checks_parts():
 @pytest.mark.parametrize("blend", ["pyramid", "none"])
 def test_sphere_bake_matches_the_colour_function(sphere_atlas, blend):
     v, f, uv, face_uv = sphere_atlas
-    views = [tx.PhotoView(sphere_photo(cam), cam) for cam in (yaw_camera(0), yaw_camera(90), yaw_camera(-90))]
+    views = [tx.BakeView(sphere_photo(cam), cam) for cam in (yaw_camera(0), yaw_camera(90), yaw_camera(-90))]
     size = 512
     result = tx.bake(v, f, uv, face_uv, {"skin": np.arange(len(v))}, views, size=size, blend=blend)
     pts = texel_points(v, f, uv, face_uv, size)
@@ -137,7 +136,7 @@ def test_sphere_bake_matches_the_colour_function(sphere_atlas, blend):
 def test_unseen_side_comes_from_the_mirror_image(sphere_atlas):
     v, f, uv, face_uv = sphere_atlas
     cams = [yaw_camera(0), yaw_camera(90)]  # the front, and the subject's left (+x) only
-    views = [tx.PhotoView(sphere_photo(c), c) for c in cams]
+    views = [tx.BakeView(sphere_photo(c), c) for c in cams]
     size = 512
     # the hard split: the pyramid mixes the low frequencies of the mirror image and the front's
     # far into both (they differ: the function is not symmetric)
@@ -155,7 +154,7 @@ def test_unseen_side_comes_from_the_mirror_image(sphere_atlas):
 def test_only_a_front_photo_fills_the_back_smoothly(sphere_atlas):
     v, f, uv, face_uv = sphere_atlas
     cam = yaw_camera(0)
-    result = tx.bake(v, f, uv, face_uv, {"skin": np.arange(len(v))}, [tx.PhotoView(sphere_photo(cam), cam)],
+    result = tx.bake(v, f, uv, face_uv, {"skin": np.arange(len(v))}, [tx.BakeView(sphere_photo(cam), cam)],
                      size=256)
     pts = texel_points(v, f, uv, face_uv, 256)
     back = ~np.isnan(pts[..., 0]) & (pts[..., 2] < -0.5)
@@ -201,7 +200,7 @@ def test_push_pull_wraps_around():
 def test_bake_checks_its_inputs(sphere_atlas):
     v, f, uv, face_uv = sphere_atlas
     cam = yaw_camera(0)
-    view = tx.PhotoView(sphere_photo(cam), cam)
+    view = tx.BakeView(sphere_photo(cam), cam)
     parts = {"skin": np.arange(len(v))}
     with pytest.raises(FaceAnimError, match="64 to 8192"):
         tx.bake(v, f, uv, face_uv, parts, [view], size=32)
@@ -210,7 +209,7 @@ def test_bake_checks_its_inputs(sphere_atlas):
     with pytest.raises(FaceAnimError, match="at least one"):
         tx.bake(v, f, uv, face_uv, parts, [], size=128)
     with pytest.raises(FaceAnimError, match="camera is for"):
-        tx.bake(v, f, uv, face_uv, parts, [tx.PhotoView(view.image[:100], cam)], size=128)
+        tx.bake(v, f, uv, face_uv, parts, [tx.BakeView(view.image[:100], cam)], size=128)
 
 
 # ----------------------------------------------------------------------------- the generic head
@@ -228,9 +227,7 @@ def test_generic_head_atlas_and_bake(generic):
     from faceanim.render import OffscreenRenderer
 
     v, f, parts = generic
-    t0 = time.perf_counter()
     uv, face_uv = tx.atlas_uv(v, f, parts)
-    t_atlas = time.perf_counter() - t0
     c = uv[face_uv]
     assert uv.min() >= 0 and uv.max() <= 1
     part_of = np.full(len(v), -1)
@@ -259,11 +256,8 @@ def test_generic_head_atlas_and_bake(generic):
     views = []
     for yaw in (0, 90, -90):
         with OffscreenRenderer(mesh, (768, 768), yaw=yaw, parallel=True) as r:
-            views.append(tx.PhotoView(r.render(), tx.view_camera(r)))
-    t0 = time.perf_counter()
-    result = tx.bake(v, f, uv, face_uv, parts, views, size=1024)
-    t_bake = time.perf_counter() - t0
-    assert t_atlas < 8 and t_bake < 10, (t_atlas, t_bake)  # about 0.7 s and 1.2 s on 2 cores
+            views.append(tx.BakeView(r.render(), tx.view_camera(r)))
+    result = tx.bake(v, f, uv, face_uv, parts, views, size=1024)  # speed: benchmarks/bench_texture.py
     tex = result.texture
     # the untextured render's eyes are skin-coloured: not an iris, the default is used
     assert np.allclose(result.iris, tx.DEFAULT_IRIS)
@@ -278,7 +272,7 @@ def test_generic_head_atlas_and_bake(generic):
         r = np.hypot(xs - px[0], ys - px[1]) / (radius * np.sin(tx.IRIS_ANGLE) * cam.scale)
         painted[r < 1] = (40, 90, 160)
         painted[r < 0.4] = (10, 10, 10)
-    eyes = tx.bake(v, f, uv, face_uv, parts, [tx.PhotoView(painted, cam)] + views[1:], size=256)
+    eyes = tx.bake(v, f, uv, face_uv, parts, [tx.BakeView(painted, cam)] + views[1:], size=256)
     assert np.abs(eyes.iris - (40, 90, 160)).max() < 8, eyes.iris
 
     def at(u, v_):
@@ -330,7 +324,7 @@ def scan_with_truth():
     cam = _fit_camera(marks.positions, pixels, (w, h))
     assert np.abs(cam.project(marks.positions) - pixels).mean() < 4
     truth = tx.bake_texture(scan.vertices, scan.faces, scan.uv, scan.face_uv, {"skin": np.arange(scan.n_vertices)},
-                            [tx.PhotoView(photo, cam)], size=1024)
+                            [tx.BakeView(photo, cam)], size=1024)
     return Mesh(scan.vertices, scan.faces, scan.uv, scan.face_uv, truth)
 
 
@@ -365,8 +359,8 @@ def test_facewarehouse_rebake_matches_the_scan_from_a_new_angle(scan_with_truth)
     for yaw in (0, 90, -90):
         with OffscreenRenderer(scan, (512, 512), yaw=yaw, parallel=True) as r:
             cam = tx.view_camera(r)
-            lit.append(tx.PhotoView(r.render(), cam))
-        unlit.append(tx.PhotoView(_unlit(scan, cam), cam))
+            lit.append(tx.BakeView(r.render(), cam))
+        unlit.append(tx.BakeView(_unlit(scan, cam), cam))
     with OffscreenRenderer(scan, (512, 512), yaw=45, parallel=True) as r:
         cam45 = tx.view_camera(r)
     face = _face_pixels(scan, cam45)

@@ -538,15 +538,6 @@ def _cached_deformer(head):
 
 # ---------------------------------------------------------------------------------------- pipeline
 @dataclass
-class TexturedView:
-    """A photo and its solved camera, as the texture baker takes them."""
-
-    image: np.ndarray
-    camera: ViewCamera
-    name: str = ""
-
-
-@dataclass
 class PhotoHead:
     """A person's head from photos: ``mesh`` (the generic head's topology, textured), its 478
     ``landmarks``, the ``parts`` (vertex indices), and how it was made (``views``,
@@ -618,12 +609,12 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
     t = time.perf_counter()
     fitted = fit_head(head, rec, method, keep_expression)
     timings[f"head modification ({method})"] = time.perf_counter() - t
-    from faceanim.build.texture import atlas_uv, bake_texture
+    from faceanim.build.texture import BakeView, atlas_uv, bake_texture
 
     t = time.perf_counter()
     faces = head.mesh.faces
     uv, face_uv = atlas_uv(fitted.vertices, faces, head.parts)
-    textured = [TexturedView(v.image, c, v.name) for v, c in zip(views, rec.cameras)]
+    textured = [BakeView(v.image, c) for v, c in zip(views, rec.cameras)]
     texture = bake_texture(fitted.expressed, faces, uv, face_uv, head.parts, textured, size=texture_size, blend=blend)
     timings["texture"] = time.perf_counter() - t
     name = Path(views[0].name).stem if views[0].name else "head"

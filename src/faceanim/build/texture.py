@@ -687,7 +687,7 @@ def view_camera(renderer) -> ViewCamera:
 
 
 @dataclass
-class PhotoView:
+class BakeView:
     """A photo and its camera (any object with ``image`` and ``camera`` will do)."""
 
     image: np.ndarray  # (H, W, 3) uint8
