@@ -72,7 +72,7 @@ COLDN, WARMN = f"{N_FRAMES} frames, cold (bind + batch)", f"{N_FRAMES} frames, w
 
 
 def face_with(levels: int) -> Mesh:
-    base = default_face(dense=False)
+    base = default_face()
     v, f = subdivide_loop(base.vertices, base.faces, levels) if levels else (base.vertices, base.faces)
     return Mesh(v, f, name=f"face_l{levels}")
 

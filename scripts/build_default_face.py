@@ -42,6 +42,7 @@ def main(argv=None) -> None:
         vertices=m.vertices.astype(np.float32),
         uv=m.uv.astype(np.float32),
         face_uv=m.face_uv.astype(np.int32),
+        affine=ph.fitted.affine,  # the fit's global part: carries the generic head's shapes over
     )
     Image.fromarray(m.texture).save(ASSETS / "default_head.png", optimize=True)
     taken = ", ".join(f"{n} {w:.2f}" for n, w in ph.fitted.expression.items() if w > 0.01)

@@ -30,7 +30,7 @@ def face():
 def base_face():
     from faceanim.face.default import default_face
 
-    return default_face(dense=False)
+    return default_face()
 
 
 @pytest.fixture(scope="session")

@@ -358,7 +358,7 @@ def test_bad_fap_bytes(tmp_path):
 def small_face():
     from faceanim.face.default import default_face
 
-    return default_face(dense=False)
+    return default_face()
 
 
 def _rbf(face, **extra):

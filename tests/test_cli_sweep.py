@@ -37,7 +37,7 @@ def assets(tmp_path_factory):
     from faceanim.rig.wires import WireTemplate, default_wires
 
     a = tmp_path_factory.mktemp("assets")
-    base = default_face(dense=False)
+    base = default_face()
     save_mesh(base, a / "face.obj")
     save_mesh(base, a / "face.glb")
     lms = default_landmarks(base)

@@ -154,9 +154,10 @@ def test_learning_without_correspondence_recovers_a_known_motion(face, face_land
 
 
 def test_target_without_a_face_region_is_refused(base_face, rng):
+    from faceanim.face.default import default_landmarks
     from faceanim.face.regions import free_region
 
-    lm = base_face.vertices[:478].copy()
+    lm = default_landmarks(base_face).positions.copy()
     away = base_face.with_vertices(base_face.vertices + [0.0, 0.0, -1.0])  # the face 1 m behind its landmarks
     with pytest.raises(LandmarkError, match="face outline"):
         free_region(away, lm)

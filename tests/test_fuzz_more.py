@@ -147,7 +147,7 @@ def wire_base():
     from faceanim.face.default import default_face, default_landmarks
     from faceanim.rig.wires import WireTemplate, default_wires
 
-    base = default_face(dense=False)
+    base = default_face()
     lm = default_landmarks(base).positions
     wireset = default_wires(lm)
     rng = np.random.default_rng(5)

@@ -230,7 +230,7 @@ json_value = st.recursive(json_leaf, lambda c: st.lists(c, max_size=5) | st.dict
 def small_face():
     from faceanim.face.default import default_face
 
-    return default_face(dense=False)
+    return default_face()
 
 
 def _valid_specs(face):

@@ -1,5 +1,9 @@
 """The demo: the default face, expressions from two papers, written as GLB, MP4 and PNGs.
 
+The default face is a whole head made from one photo (Lee et al. 1999's cloning, see
+``faceanim.build.photo``); it blinks over its eyeballs and opens its jaw onto its teeth with the
+generic head's own shapes.
+
 Four expressions made of geometry deformation elements follow Noh et al.'s examples (figures 5,
 7-9): a smile from the mouth corners and cheeks, sadness from lowered corners and raised inner
 brows, anger from lowered, drawn-together brows and pressed lips, and the mouth shape for 'A'
@@ -18,7 +22,7 @@ import numpy as np
 
 from faceanim.deform.gde import GeometryDeformationElement as GDE
 from faceanim.drivers.keyframes import expression_tour
-from faceanim.face.default import default_landmarks
+from faceanim.face.default import default_landmarks, default_shapes
 from faceanim.face.face import Face
 from faceanim.limits import DEFAULT_FPS
 from faceanim.player import frames_of, write_rig_gltf
@@ -73,6 +77,11 @@ def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = DEFAULT_FPS, si
     face = Face.default()
     shapes = expression_rig(face.mesh, demo_expressions(default_landmarks(face.mesh))).blendshape_dict()
     shapes.update(emotion_blendshapes(face))
+    # the head's own eyelids close over its eyeballs and its jaw opens onto its teeth (the generic
+    # head's ARKit shapes, carried over by the photo fit)
+    arkit = default_shapes()
+    shapes["blink"] = arkit["eyeBlink_L"] + arkit["eyeBlink_R"]
+    shapes["jaw_open"] = arkit["jawOpen"]
     rig = Rig.from_blendshapes(face.mesh, shapes)
     _, curves = expression_tour(rig.controls).sample(fps)
     written = [write_rig_gltf(rig, curves, out / "demo.glb", fps, "expressions", names=rig.controls)]

@@ -41,6 +41,7 @@ def photo_rig_shapes(face, head=None) -> dict[str, np.ndarray]:
 
 def _cmd_photo(args) -> None:
     from faceanim.build.photo import head_from_photos
+    from faceanim.face.generic_head import generic_head
     from faceanim.io.meshio import save_mesh
     from faceanim.render import render_png
 
@@ -69,7 +70,7 @@ def _cmd_photo(args) -> None:
 
         shapes = {}
         if args.rig:
-            shapes = photo_rig_shapes(face, arkit_shapes(ph))
+            shapes = photo_rig_shapes(face, generic_head().carried_shapes(ph.fitted.affine[:, :3], "arkit_"))
         rig = Rig.from_blendshapes(face.mesh, shapes)
         if shapes:
             curves = np.zeros((2, rig.n_controls))
@@ -85,16 +86,6 @@ def _cmd_photo(args) -> None:
     print(f"views: {errs} (median reprojection error, inter-ocular distances); "
           f"{ph.timings['total']:.1f} s")
     report(written)
-
-
-def arkit_shapes(ph) -> dict[str, np.ndarray]:
-    """The generic head's 53 ARKit-named shapes on the fitted head (deltas carried over through
-    the fit's local linear part: the global affine)."""
-    from faceanim.face.generic_head import generic_head
-
-    head = generic_head()
-    lin = ph.fitted.affine[:, :3]
-    return {f"arkit_{n}": head.shape(n) @ lin.T for n in head.shape_names}
 
 
 def register(sub) -> None:

@@ -1,61 +1,69 @@
-"""faceanim's embedded default face, built from a real photograph.
+"""faceanim's embedded default face: a whole head built from a real photograph.
 
-``scripts/build_default_face.py`` made the asset from scikit-image's ``astronaut`` photo with the
-MediaPipe face mesh (see that script). Here it is turned into a :class:`Mesh`: the 479-vertex
-face-mesh topology, or a smooth ~30k-vertex version by three Loop subdivisions. Texture
-coordinates are the projection of each vertex into the photo, so they stay exact on the
-subdivided mesh. Vertex ``i`` < 478 of either version is MediaPipe landmark ``i``. Units are
-metres; the face looks along +z with +y up.
+``scripts/build_default_face.py`` made it from scikit-image's ``astronaut`` photo with faceanim's
+own photo pipeline (:mod:`faceanim.build.photo`, Lee et al. 1999): the generic head
+(:mod:`faceanim.face.generic_head`, the ICT FaceKit head) fitted to the photo's face, with skin,
+eyeballs, teeth, gums, tongue and mouth cavity as parts of one mesh, a neutral mouth (the photo's
+smile fitted, then taken off) and one texture atlas. The asset stores the vertices and texture
+coordinates; triangles, parts and the 478 landmarks (on triangles) are the generic head's. Units
+are metres; the face looks along +z with +y up.
 """
 
 from __future__ import annotations
 
+from functools import lru_cache
 from importlib import resources
 
 import numpy as np
 
+from faceanim.face.generic_head import generic_head
 from faceanim.face.landmarks import SCHEMES, Landmarks
 from faceanim.face.mesh import Mesh
-
-SUBDIVISIONS = 3
 
 
 def _asset(name: str):
     return resources.files("faceanim").joinpath("assets", name)
 
 
-def default_face(dense: bool = True) -> Mesh:
-    """The default face: dense (~30k vertices, three Loop subdivisions) or the 479-vertex base."""
+@lru_cache(maxsize=1)
+def _default_arrays() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     from PIL import Image
-    from trimesh.remesh import subdivide_loop
 
-    with _asset("default_face.npz").open("rb") as fh:
+    with _asset("default_head.npz").open("rb") as fh:
         data = dict(np.load(fh))
-    with _asset("default_face.png").open("rb") as fh:
+    with _asset("default_head.png").open("rb") as fh:
         texture = np.asarray(Image.open(fh).convert("RGB")).copy()
-    pix = data["image_vertices"]
-    faces = data["faces"].astype(np.int64)
-    if dense:
-        pix, faces = subdivide_loop(pix, faces, SUBDIVISIONS)
-    ox, oy = data["crop_origin"]
-    cw, ch = data["crop_size"]
-    uv = np.stack([(pix[:, 0] - ox) / cw, 1.0 - ((-pix[:, 1]) - oy) / ch], axis=1)
-    t = data["transform"]
-    vertices = pix @ t[:3, :3].T + t[:3, 3]
-    name = "default_face" if dense else "default_face_base"
-    return Mesh(vertices, faces, uv, None, texture, name=name, source=f"faceanim:{name}")
+    return (data["vertices"].astype(np.float64), data["uv"].astype(np.float64),
+            data["face_uv"].astype(np.int64), texture)
 
 
-def default_landmarks(mesh: Mesh, scheme: str = "mediapipe478") -> Landmarks:
-    """The default face's own landmarks (vertex ``i`` is MediaPipe point ``i``)."""
+def default_face() -> Mesh:
+    """The default face: a textured full head (24,591 vertices, the generic head's topology)."""
+    head = generic_head()
+    vertices, uv, face_uv, texture = _default_arrays()
+    return Mesh(vertices.copy(), head.mesh.faces.copy(), uv.copy(), face_uv.copy(), texture.copy(),
+                head.mesh.polygon_sizes.copy(), name="default_face", source="faceanim:default_face")
+
+
+def default_shapes(prefix: str = "") -> dict[str, np.ndarray]:
+    """The generic head's 53 expression shapes (ARKit names) carried onto the default face."""
+    with _asset("default_head.npz").open("rb") as fh:
+        affine = np.load(fh)["affine"]
+    return generic_head().carried_shapes(affine[:, :3], prefix)
+
+
+def default_parts() -> dict[str, np.ndarray]:
+    """Part name -> vertex indices of the default face (skin, gums_tongue, teeth, eyeballs)."""
+    return {k: v.copy() for k, v in generic_head().parts.items()}
+
+
+def default_landmarks(mesh: Mesh | None = None, scheme: str = "mediapipe478") -> Landmarks:
+    """The default face's own landmarks (on its triangles; on ``mesh``'s vertices when given, a
+    deformed copy of the default face)."""
+    head = generic_head()
+    vertices = _default_arrays()[0] if mesh is None else mesh.vertices
+    pos = head.landmarks(vertices)
     pairs = SCHEMES[scheme]
     idx = np.array([i for _, i in pairs])
-    tri = np.full(mesh.n_vertices, -1, dtype=np.int64)
-    corner = np.full(mesh.n_vertices, 0, dtype=np.int64)
-    for k in range(3):
-        tri[mesh.faces[::-1, k]] = np.arange(mesh.n_faces)[::-1]
-    for k in range(3):
-        corner[idx[mesh.faces[tri[idx], k] == idx]] = k
-    bary = np.zeros((len(idx), 3))
-    bary[np.arange(len(idx)), corner[idx]] = 1.0
-    return Landmarks(scheme, [n for n, _ in pairs], idx, mesh.vertices[idx].copy(), tri[idx], bary, mesh.source)
+    return Landmarks(scheme, [n for n, _ in pairs], idx, pos[idx], head.landmark_triangles[idx].copy(),
+                     head.landmark_barycentric[idx].copy(), "faceanim:default_face")

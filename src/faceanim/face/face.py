@@ -38,9 +38,9 @@ def landmarks_478(mesh: Mesh, landmarks: Landmarks) -> np.ndarray:
         raise LandmarkError(
             f"action units need the 478 MediaPipe landmarks or the basic 22; missing: {', '.join(missing[:6])}"
             + (" ..." if len(missing) > 6 else "") + " (run `faceanim landmarks` on the mesh)")
-    from faceanim.face.default import default_face
+    from faceanim.face.default import default_landmarks
 
-    ref = default_face(dense=False).vertices[:478]
+    ref = default_landmarks().positions
     tps = landmark_tps(ref[need], landmarks.positions[[where[i] for i in need]], "basic 22 landmarks")
     moved = tps(ref)
     pos, _, _ = mesh.closest_points(moved)
@@ -68,7 +68,7 @@ class Face:
     # ------------------------------------------------------------------ building
     @classmethod
     def default(cls) -> Face:
-        """The embedded default face (~30k vertices) with its embedded landmarks."""
+        """The embedded default face (a textured full head) with its embedded landmarks."""
         from faceanim.face.default import default_face, default_landmarks
 
         mesh = default_face()

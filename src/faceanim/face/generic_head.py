@@ -63,6 +63,12 @@ class GenericHead:
         out[rows] = delta
         return out
 
+    def carried_shapes(self, linear: np.ndarray | None = None, prefix: str = "") -> dict[str, np.ndarray]:
+        """All expression shapes carried onto a head fitted from this one: each delta turned by the
+        fit's linear part ``linear`` (3, 3) (the global affine of the fit; identity if None)."""
+        lin = np.eye(3) if linear is None else np.asarray(linear, dtype=np.float64)
+        return {f"{prefix}{n}": self.shape(n) @ lin.T for n in self.shape_names}
+
     def part_of(self) -> np.ndarray:
         """(V,) index into ``list(parts)`` of each vertex's part."""
         out = np.zeros(self.mesh.n_vertices, dtype=np.int64)
