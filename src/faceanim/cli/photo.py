@@ -43,7 +43,6 @@ def _cmd_photo(args) -> None:
     from faceanim.build.photo import head_from_photos
     from faceanim.face.generic_head import generic_head
     from faceanim.io.meshio import save_mesh
-    from faceanim.render import render_png
 
     out = Path(args.output)
     if args.rig and out.suffix.lower() != ".glb":
@@ -68,17 +67,15 @@ def _cmd_photo(args) -> None:
         from faceanim.player import write_rig_gltf
         from faceanim.rig.rig import Rig
 
-        shapes = {}
         if args.rig:
             shapes = photo_rig_shapes(face, generic_head().carried_shapes(ph.fitted.affine[:, :3], "arkit_"))
-        rig = Rig.from_blendshapes(face.mesh, shapes)
-        if shapes:
+            rig = Rig.from_blendshapes(face.mesh, shapes)
             curves = np.zeros((2, rig.n_controls))
             written = [write_rig_gltf(rig, curves, out, fps=1.0, name="rest", names=rig.controls)]
         else:
             from faceanim.io.gltf import write_gltf
 
-            written = [write_gltf(out, face.mesh, {})]
+            written = [write_gltf(out, face.mesh)]
     else:
         written = save_mesh(face.mesh, out, avoid=named_paths(args))
     rec = ph.reconstruction
