@@ -14,8 +14,8 @@ import pytest
 
 from faceanim.build import photo as P
 from faceanim.build.camera import ViewCamera
-from faceanim.face.generic_head import generic_head
 from faceanim.errors import FaceAnimError, InputFileError, LandmarkError
+from faceanim.face.generic_head import generic_head
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MULTI = DATA / "multiview-photos"

@@ -6,7 +6,15 @@ from pathlib import Path
 
 import numpy as np
 
-from faceanim.cli.common import DEFAULT_SIZE, SIZE, CommandError, add_output, check_outputs, named_paths, report
+from faceanim.cli.common import (
+    DEFAULT_SIZE,
+    SIZE,
+    CommandError,
+    add_output,
+    check_outputs,
+    named_paths,
+    report,
+)
 
 SUFFIXES = [".glb", ".obj", ".ply", ".png"]
 
