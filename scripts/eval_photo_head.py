@@ -126,20 +126,31 @@ def real_photos(data: Path, sheet: Path | None) -> None:
               f"{np.percentile(e, 95):.4f} | {e.max():.4f} |")
     print("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in ph.timings.items()) + f" (wall {total:.1f} s)")
     if sheet is not None:
-        from PIL import Image
+        from PIL import Image, ImageDraw
 
-        from faceanim.render.gl import OffscreenRenderer as R
+        from faceanim.render.bake import ortho_render
 
+        m = ph.mesh
         tiles = []
-        for v, cam in zip(ph.views, ph.reconstruction.cameras):
-            img = v.image
-            h, w = img.shape[:2]
-            # the rebuilt head seen by the photo's own camera: render parallel along the camera axis
-            yaw = cam.yaw_degrees
-            with R(ph.mesh, size=(w, h), yaw=yaw, parallel=True, frame_vertices=ph.mesh.vertices[ph.parts["skin"]]) as r:
-                tiles.append(np.vstack([img, r.render()]))
+        for v, cam, rows in zip(ph.views, ph.reconstruction.cameras, ph.reconstruction.observed):
+            h, w = v.image.shape[:2]
+            # the rebuilt head through the photo's own solved camera (unlit albedo), the photo's
+            # landmarks (green) and the rebuilt head's landmarks (red) on both
+            render = ortho_render(m.vertices, m.faces, m.uv[m.face_uv], m.texture, cam.matrix, cam.offset,
+                                  cam.direction, (w, h), background=(40, 40, 48))
+            pair = []
+            for img in (v.image, render):
+                im = Image.fromarray(np.ascontiguousarray(img))
+                d = ImageDraw.Draw(im)
+                for i in rows[rows < 468][::3]:
+                    x, y = v.points[int(i)]
+                    d.point((x, y), fill=(0, 255, 0))
+                    x, y = cam.project(ph.landmarks[[int(i)]])[0]
+                    d.point((x, y), fill=(255, 0, 0))
+                pair.append(np.asarray(im))
+            tiles.append(np.vstack(pair))
         Image.fromarray(np.hstack(tiles)).save(sheet)
-        print(f"contact sheet: {sheet}")
+        print(f"contact sheet: {sheet} (top: photos; bottom: the rebuilt head through each photo's camera)")
 
 
 def main(argv=None) -> None:
