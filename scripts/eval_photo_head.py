@@ -125,6 +125,15 @@ def real_photos(data: Path, sheet: Path | None) -> None:
         print(f"| {Path(v.name).name} | {cam.yaw_degrees:.1f} | {len(e)} | {np.median(e):.4f} | "
               f"{np.percentile(e, 95):.4f} | {e.max():.4f} |")
     print("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in ph.timings.items()) + f" (wall {total:.1f} s)")
+    from faceanim.build.texture import BakeView, bake, seam_step
+
+    views = [BakeView(v.image, c) for v, c in zip(ph.views, ph.reconstruction.cameras)]
+    steps = {}
+    for blend in ("none", "pyramid"):
+        b = bake(ph.fitted.expressed, ph.mesh.faces, ph.mesh.uv, ph.mesh.face_uv, ph.parts, views, blend=blend)
+        steps[blend] = seam_step(b.texture, b.split)
+    print(f"texture seam step (mean |RGB| across the merge lines, 0..255): hard split {steps['none']:.2f}, "
+          f"Laplacian pyramid {steps['pyramid']:.2f}")
     if sheet is not None:
         from PIL import Image, ImageDraw
 
