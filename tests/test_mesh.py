@@ -37,17 +37,75 @@ def test_textured_obj_round_trip_keeps_texture(tmp_path, base_face):
     back = load_mesh(tmp_path / "face.obj")
     assert np.array_equal(back.texture, base_face.texture)
     np.testing.assert_allclose(back.uv, base_face.uv, atol=1e-7)
+    # every triangle corner keeps its own UV (the head has UV seams, some through its quads)
+    np.testing.assert_array_equal(back.faces, base_face.faces)
+    np.testing.assert_array_equal(back.face_uv, base_face.face_uv)
+
+
+def test_obj_writes_a_quad_split_by_a_uv_seam_as_its_triangles(tmp_path):
+    """A quad whose two triangles give its diagonal's corners different UVs (an atlas seam along
+    the diagonal) cannot be one OBJ polygon: it is written as two triangles, every corner's UV
+    kept; the quad beside it stays a quad."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]], dtype=float)
+    faces = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]])
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5], [0.6, 0.6], [2, 0], [2, 1]], dtype=float)
+    face_uv = np.array([[0, 1, 2], [4, 5, 3], [1, 6, 7], [1, 7, 2]])  # triangle 1: corners 0, 2 elsewhere
+    m = Mesh(v, faces, uv, face_uv, polygon_sizes=np.array([4, 4]))
+    save_mesh(m, tmp_path / "seam.obj")
+    back = load_mesh(tmp_path / "seam.obj")
+    np.testing.assert_array_equal(back.faces, faces)
+    np.testing.assert_allclose(back.uv[back.face_uv], uv[face_uv], atol=1e-9)
+    np.testing.assert_array_equal(back.polygon_sizes, [3, 3, 4])
 
 
 @pytest.mark.parametrize("suffix", [".ply", ".glb"])
 def test_ply_and_glb_keep_vertex_order(tmp_path, base_face, suffix):
+    """The head has UV seams: PLY keeps the vertices as they are and gives each triangle its corners'
+    UVs; glTF adds seam copies after them, which reading maps back (``extras.sourceVertex``). Either
+    way the mesh read back is the one written: its vertices in order, its triangles, every
+    corner's UV."""
+    assert len(base_face.uv) > base_face.n_vertices  # seams
     save_mesh(base_face, tmp_path / f"face{suffix}")
     back = load_mesh(tmp_path / f"face{suffix}")
-    assert back.n_vertices >= base_face.n_vertices
-    np.testing.assert_allclose(back.vertices[: base_face.n_vertices], base_face.vertices, atol=1e-6)
-    np.testing.assert_allclose(back.uv[: base_face.n_vertices], base_face.uv, atol=1e-6)
+    assert back.n_vertices == base_face.n_vertices
+    np.testing.assert_allclose(back.vertices, base_face.vertices, atol=1e-6)
+    np.testing.assert_array_equal(back.faces, base_face.faces)
+    np.testing.assert_allclose(back.uv[back.face_uv], base_face.uv[base_face.face_uv], atol=1e-6)
     if suffix == ".glb":
         assert back.texture is not None and back.texture.shape[:2] == base_face.texture.shape[:2]
+
+
+def test_a_glb_source_vertex_map_that_does_not_fit_is_not_applied(tmp_path):
+    """Reading maps seam copies back only when ``sourceVertex`` is the writer's layout (the mesh's
+    vertices first, in order; copies at their vertices' positions); otherwise the file is read as
+    stored."""
+    import pygltflib
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float)
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0.5, 0.5]], dtype=float)
+    m = Mesh(v, np.array([[0, 1, 2], [0, 2, 3]]), uv, np.array([[0, 1, 2], [4, 2, 3]]))
+    save_mesh(m, tmp_path / "s.glb")
+    gltf = pygltflib.GLTF2().load(str(tmp_path / "s.glb"))
+    assert gltf.meshes[0].primitives[0].extras == {"sourceVertex": [0, 1, 2, 3, 0]}
+    assert load_mesh(tmp_path / "s.glb").n_vertices == 4
+    for wrong in ([0, 1, 2, 3, 1], [1, 0, 2, 3, 0], [0, 1, 2, 3], [0, 1, 2, 3, "0"], [0, 1, 2, 3, -1]):
+        gltf.meshes[0].primitives[0].extras = {"sourceVertex": wrong}
+        gltf.save_binary(str(tmp_path / "w.glb"))
+        back = load_mesh(tmp_path / "w.glb")
+        assert back.n_vertices == 5, wrong
+        np.testing.assert_allclose(back.vertices[back.faces], v[m.faces], atol=1e-6)
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".glb"])
+def test_ply_and_glb_keep_per_vertex_uvs(tmp_path, suffix):
+    """A mesh without seams: one UV per vertex, read back per vertex, nothing added."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.2]], dtype=float)
+    m = Mesh(v, np.array([[0, 1, 2], [0, 2, 3]]), v[:, :2] * 0.5 + 0.1)
+    save_mesh(m, tmp_path / f"q{suffix}")
+    back = load_mesh(tmp_path / f"q{suffix}")
+    np.testing.assert_allclose(back.vertices, v, atol=1e-6)
+    np.testing.assert_array_equal(back.faces, m.faces)
+    np.testing.assert_allclose(back.uv[back.face_uv], m.uv[m.faces], atol=1e-6)
 
 
 def test_glb_with_seams_keeps_the_original_vertices_first(tmp_path):

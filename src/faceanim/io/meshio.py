@@ -3,7 +3,11 @@
 A user's mesh comes back as it went in: the same vertex count and order, UVs and texture kept.
 OBJ is read and written here (trimesh splits vertices along UV seams on load, which would renumber
 them); PLY, glTF and GLB are read with trimesh, whose loaders keep the stored vertex order. Polygons
-are triangulated as fans; OBJ output writes the original polygons back.
+are triangulated as fans; OBJ output writes the original polygons back (a polygon a UV seam runs
+through, whose triangles give one corner two UVs, as its triangles). UV seams: a PLY keeps the
+vertices and gives each triangle its corners' UVs (the face list ``texcoord``, read back as such);
+glTF adds seam copies after the mesh's own vertices and names their sources in
+``primitive.extras.sourceVertex``, which reading uses to give the mesh back as it was written.
 
 Reading refuses damaged files with a :class:`MeshError` that names the file (and for OBJ the line):
 non-numbers, NaN or infinite or absurd coordinates, faces of fewer than 3 corners, indices that are
@@ -358,7 +362,9 @@ def _load_with_trimesh(path: Path) -> Mesh:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             warnings.simplefilter("error", Image.DecompressionBombWarning)
-            loaded = trimesh.load(str(path), process=False, maintain_order=True)
+            # a PLY's per-corner UVs ('texcoord') are read below; trimesh would split the vertices
+            extra = {"fix_texture": False} if path.suffix.lower() == ".ply" else {}
+            loaded = trimesh.load(str(path), process=False, maintain_order=True, **extra)
             if isinstance(loaded, trimesh.Scene):
                 geoms = [g for g in loaded.dump(concatenate=False) if isinstance(g, trimesh.Trimesh)]
                 if not geoms:
@@ -380,6 +386,15 @@ def _load_with_trimesh(path: Path) -> Mesh:
                 if img is not None:
                     texture = np.asarray(img.convert("RGBA" if img.mode in ("RGBA", "LA", "P") else "RGB")).copy()
             vertices, faces = np.asarray(m.vertices), np.asarray(m.faces)
+            face_uv = None
+            if path.suffix.lower() == ".ply":
+                corner_uv = _ply_corner_uv(m, len(faces))
+                if corner_uv is not None:
+                    if not np.isfinite(corner_uv).all():
+                        raise MeshError(f"mesh '{path}' has NaN or infinite texture coordinates; repair or "
+                                        "re-export it")
+                    uv, inverse = np.unique(corner_uv.reshape(-1, 2), axis=0, return_inverse=True)
+                    face_uv = inverse.reshape(-1, 3)
     except FaceAnimError:
         raise
     except (Image.DecompressionBombError, Image.DecompressionBombWarning):
@@ -397,7 +412,50 @@ def _load_with_trimesh(path: Path) -> Mesh:
     if doc and doc.get("images") and doc.get("textures") and uv is not None and texture is None:
         raise MeshError(f"mesh '{path}' names a texture that cannot be read (damaged or not an image); "
                         "re-export it, or remove the texture")
-    return Mesh(vertices, faces, uv, None, texture, name=path.stem, source=str(path))
+    source = _gltf_source_vertex(doc, vertices) if doc else None
+    if source is not None:
+        # the seam copies faceanim's glTF writer added go back onto their vertices; each corner
+        # keeps its own UV
+        n = int(source.max()) + 1
+        face_uv = faces if uv is not None else None
+        vertices, faces = vertices[:n], source[faces]
+    return Mesh(vertices, faces, uv, face_uv, texture, name=path.stem, source=str(path))
+
+
+def _ply_corner_uv(m, n_faces: int) -> np.ndarray | None:
+    """(T, 6) UVs of each triangle's corners from a PLY face list 'texcoord' (None without one)."""
+    raw = (getattr(m, "metadata", None) or {}).get("_ply_raw") or {}
+    data = (raw.get("face") or {}).get("data")
+    try:
+        tc = data["texcoord"]
+        tc = tc["f1"] if getattr(tc, "dtype", None) is not None and tc.dtype.names else tc
+        tc = np.asarray(tc, dtype=np.float64)
+    except (KeyError, IndexError, TypeError, ValueError):
+        return None
+    return tc if tc.shape == (n_faces, 6) else None
+
+
+def _gltf_source_vertex(doc: dict, vertices: np.ndarray) -> np.ndarray | None:
+    """The ``primitive.extras.sourceVertex`` map of a glTF faceanim wrote (one mesh, one primitive):
+    glTF vertex -> vertex of the mesh written, the mesh's own vertices first, in order, then seam
+    copies at the positions of their vertices. None when the file has no such map or it does not
+    fit what was read (the file is then read as stored)."""
+    meshes = doc.get("meshes")
+    if not isinstance(meshes, list) or len(meshes) != 1 or not isinstance(meshes[0], dict):
+        return None
+    prims = meshes[0].get("primitives")
+    if not isinstance(prims, list) or len(prims) != 1 or not isinstance(prims[0], dict):
+        return None
+    extras = prims[0].get("extras")
+    src = extras.get("sourceVertex") if isinstance(extras, dict) else None
+    if not isinstance(src, list) or len(src) != len(vertices) or not all(type(i) is int for i in src):
+        return None
+    src = np.asarray(src, dtype=np.int64)
+    n = int(src.max(initial=-1)) + 1
+    if src.min(initial=0) < 0 or n < 1 or not np.array_equal(src[:n], np.arange(n)) \
+            or not np.array_equal(vertices[src], vertices):
+        return None
+    return src
 
 
 # ====================================================================== writing
@@ -503,12 +561,7 @@ def _save_obj(m: Mesh, path: Path, avoid: set[str]) -> list[Path]:
     lines.append("".join(f"v {x:.9g} {y:.9g} {z:.9g}\n" for x, y, z in m.vertices))
     if m.uv is not None:
         lines.append("".join(f"vt {u:.9g} {v:.9g}\n" for u, v in m.uv))
-    if m.polygon_sizes is not None:
-        polys_v = _unfan(m.faces, m.polygon_sizes)
-        polys_t = _unfan(m.face_uv, m.polygon_sizes) if m.uv is not None else None
-    else:
-        polys_v = list(m.faces)
-        polys_t = list(m.face_uv) if m.uv is not None else None
+    polys_v, polys_t = _polygons(m)
     if polys_t is None:
         lines.append("".join("f " + " ".join(str(i + 1) for i in p) + "\n" for p in polys_v))
     else:
@@ -529,6 +582,40 @@ def _save_obj(m: Mesh, path: Path, avoid: set[str]) -> list[Path]:
     return [path, mtl, tex] if textured else [path]
 
 
+def _polygons(m: Mesh) -> tuple[list[np.ndarray], list[np.ndarray] | None]:
+    """The polygons an OBJ writes: vertex corners and UV corners (None without UVs) of each.
+
+    The original polygons where the triangles are their fans; a polygon whose triangles are not
+    the fan of one corner list, in vertices or in UVs (a UV seam through a quad: its two triangles
+    give a shared corner two UVs, which one OBJ polygon cannot say), is written as its triangles.
+    """
+    sizes = m.polygon_sizes
+    tris_t = m.face_uv if m.uv is not None else None
+    if sizes is None or int(np.sum(sizes - 2)) != m.n_faces or np.any(sizes < 3):
+        return list(m.faces), (list(tris_t) if tris_t is not None else None)
+    polys_v = _unfan(m.faces, sizes)
+    polys_t = _unfan(tris_t, sizes) if tris_t is not None else None
+    same = np.all(_fan(np.concatenate(polys_v), sizes) == m.faces, axis=1)
+    if polys_t is not None:
+        same &= np.all(_fan(np.concatenate(polys_t), sizes) == tris_t, axis=1)
+    first = np.cumsum(sizes - 2) - (sizes - 2)  # each polygon's first triangle
+    whole = np.logical_and.reduceat(same, first)
+    if whole.all():
+        return polys_v, polys_t
+    out_v, out_t = [], ([] if polys_t is not None else None)
+    for k in range(len(sizes)):
+        if whole[k]:
+            out_v.append(polys_v[k])
+            if out_t is not None:
+                out_t.append(polys_t[k])
+            continue
+        rows = range(first[k], first[k] + sizes[k] - 2)
+        out_v.extend(m.faces[t] for t in rows)
+        if out_t is not None:
+            out_t.extend(tris_t[t] for t in rows)
+    return out_v, out_t
+
+
 def _unfan(faces: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
     out, t = [], 0
     for n in sizes:
@@ -542,11 +629,33 @@ def _unfan(faces: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
 def _save_ply(m: Mesh, path: Path) -> list[Path]:
     import trimesh
 
+    if m.uv is not None and not np.array_equal(m.face_uv, m.faces):
+        # UV seams: each triangle carries its corners' UVs (the 'texcoord' face list MeshLab and
+        # trimesh read), so the vertices stay the mesh's own, in its order
+        return _save_ply_corner_uv(m, path)
     visual = None
-    if m.uv is not None and np.array_equal(m.face_uv, m.faces):
+    if m.uv is not None:
         # one UV per vertex (no seams): PLY carries it as the s, t vertex properties
         visual = trimesh.visual.TextureVisuals(uv=m.uv)
     tm = trimesh.Trimesh(m.vertices, m.faces, process=False, validate=False, visual=visual)
     with atomic_output(path, "mesh output") as tmp:
         tm.export(str(tmp), file_type="ply")
+    return [path]
+
+
+def _save_ply_corner_uv(m: Mesh, path: Path) -> list[Path]:
+    """Binary PLY with the vertices as they are and each triangle's three corner UVs."""
+    header = (f"ply\nformat binary_little_endian 1.0\ncomment {_OBJ_MARK[2:]}\n"
+              f"element vertex {m.n_vertices}\nproperty float x\nproperty float y\nproperty float z\n"
+              f"element face {m.n_faces}\nproperty list uchar int vertex_indices\n"
+              "property list uchar float texcoord\nend_header\n")
+    vertex = np.ascontiguousarray(m.vertices, dtype="<f4")
+    face = np.zeros(m.n_faces, dtype=[("n", "u1"), ("index", "<i4", 3), ("m", "u1"), ("uv", "<f4", 6)])
+    face["n"], face["index"], face["m"] = 3, m.faces, 6
+    face["uv"] = m.uv[m.face_uv].reshape(-1, 6)
+    with atomic_output(path, "mesh output") as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(header.encode("ascii"))
+            fh.write(vertex.tobytes())
+            fh.write(face.tobytes())
     return [path]
