@@ -14,8 +14,8 @@ first V vertices are the source mesh's, in its order, and the seam copies follow
   of the mesh's half-extents and of the deltas' components, stored as the node's ``scale`` and
   ``translation``. glTF adds the deltas to the positions before the node transform, so both share
   the one scale: a morph accessor cannot carry its own. The worst error of any coordinate,
-  position or delta, is half a step, ``s / 32767 / 2`` (1.2 micrometres on the 30k-vertex
-  default face, 5.3e-6 of its 23 cm bounding-box diagonal; see :func:`quantization_frame`). The scale is
+  position or delta, is half a step, ``s / 32767 / 2`` (2.5 micrometres on the default head,
+  5.4e-6 of its 47 cm bounding-box diagonal; see :func:`quantization_frame`). The scale is
   uniform so the normals need no correction for a non-uniform node scale;
 - normals are normalised int8 (BYTE), texture coordinates normalised uint16 (when all lie in
   [0, 1]; otherwise they stay float), triangle indices uint16 when the mesh has fewer than 65535
