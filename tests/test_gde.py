@@ -10,7 +10,7 @@ from faceanim.errors import DeformError
 
 
 def test_edge_metric_region_is_the_bfs_ball(face, face_landmarks):
-    root = 61  # mouth corner (vertex i of the default face is MediaPipe landmark i)
+    root = int(face.kdtree.query(face_landmarks["mouth_corner_left"])[1])  # the head's vertex at a mouth corner
     b = element_influence(face, GDE(tuple(face.vertices[root]), 6, "edges"))
     # oracle: hop distances from scipy's breadth-first search
     hops = csgraph.shortest_path(face.adjacency.astype(float), unweighted=True, indices=root)
@@ -49,10 +49,13 @@ def test_locality_outside_regions_is_bit_identical_and_anchors_fixed(face, face_
 
 
 def test_control_point_moves_by_its_offset(face, face_landmarks):
-    c = face_landmarks["chin"]
+    # a control point on a vertex (the head's vertex nearest the chin landmark, which lies inside a
+    # triangle): the vertex is where the interpolant is exact
+    root = int(face.kdtree.query(face_landmarks["chin"])[1])
+    c = face.vertices[root]
     off = np.array([0.0, -0.01, 0.0])
     exact = bind_gdes(face, [GDE(tuple(c), 0.03, "euclidean", smoothing=0.0)])
-    root = int(face.kdtree.query(c)[1])
+    assert element_influence(face, GDE(tuple(c), 0.03, "euclidean")).root == root
     np.testing.assert_allclose(exact.apply(off[None])[root] - face.vertices[root], off, atol=1e-12)
     # with the paper's lambda = 0.01 the control point is approximated, not matched
     smooth = bind_gdes(face, [GDE(tuple(c), 0.03, "euclidean")])
@@ -95,9 +98,12 @@ def test_edge_metric_keeps_the_upper_lip_still(face, face_landmarks):
     """The paper's figure 3: an edge-metric element on the lower lip leaves the upper lip."""
     d = bind_gdes(face, [GDE(tuple(face_landmarks["lower_lip_inner"]), 12, "edges")])
     out = d.apply(np.array([[0.0, -0.008, 0.0]]))
-    upper = [0, 13, 37, 267, 82, 312]  # upper-lip landmarks
-    assert np.array_equal(out[upper], face.vertices[upper])
-    assert out[14, 1] < face.vertices[14, 1] - 0.004
+    upper = [0, 13, 37, 267, 82, 312]  # upper-lip landmarks, each inside a triangle of the upper lip
+    corners = np.unique(face.faces[face_landmarks.triangles[upper]])
+    assert np.array_equal(out[corners], face.vertices[corners])
+    moved = face_landmarks.on(out, face.faces)
+    assert np.array_equal(moved[upper], face_landmarks.positions[upper])
+    assert moved[14, 1] < face_landmarks.positions[14, 1] - 0.004  # the lower lip's middle goes down
 
 
 def test_bad_elements(face):
