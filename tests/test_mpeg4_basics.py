@@ -138,8 +138,9 @@ def test_rotations_and_unsupported_faps(fap_rig, face):
     # the head turns rigidly: distances kept, the gaze turned towards +x by 0.3 rad
     d0 = np.linalg.norm(face.vertices[::97] - face.vertices[5], axis=1)
     np.testing.assert_allclose(np.linalg.norm(v[0][::97] - v[0][5], axis=1), d0, atol=1e-12)
-    nose = fp.frame.to_local(v[0][face.kdtree.query(fp["9.3"])[1]]) - fp.frame.to_local(fp["7.1"])
-    nose0 = fp.frame.to_local(fp["9.3"]) - fp.frame.to_local(fp["7.1"])
+    tip = face.kdtree.query(fp["9.3"])[1]  # the vertex nearest the nose tip (9.3 lies inside a triangle)
+    nose = fp.frame.to_local(v[0][tip]) - fp.frame.to_local(fp["7.1"])
+    nose0 = fp.frame.to_local(face.vertices[tip]) - fp.frame.to_local(fp["7.1"])
     turn = np.arctan2(nose[0], nose[2]) - np.arctan2(nose0[0], nose0[2])
     assert turn == pytest.approx(0.3, abs=1e-9)
     # the jaw drops the chin by about open_jaw * MNS / 1024 and leaves the eyes alone
@@ -158,26 +159,20 @@ def test_rotations_and_unsupported_faps(fap_rig, face):
     up.set("open_jaw", -500)
     assert any("open_jaw" in w and "[0, 4096]" in w for w in fap_rig.check(up))
     np.testing.assert_array_equal(fap_rig.evaluate(up)[0], face.vertices)
-    # a face mask has no tongue: the FAP is reported and does nothing
+    # the tongue's feature points are not placed (the default head's tongue is a shell inside the
+    # mouth, but no landmark finds its tip): the FAP is reported and does nothing
     assert any("raise_tongue_tip" in w for w in fap_rig.check(s))
     np.testing.assert_array_equal(v[2], face.vertices)
 
 
-def test_eyeballs_turn_on_a_head_that_has_them(fap_rig):
-    from conftest import ICT, need
-
-    from faceanim.face.landmarks import detect_landmarks
-    from faceanim.io.meshio import load_mesh
-    from faceanim.rig.mpeg4 import FapRig
-
-    assert 23 in fap_rig.unsupported  # the default face is a mask without eyeballs
-    head = load_mesh(need(ICT / "generic_neutral_mesh.obj"))
-    rig = FapRig.build(Face(head, landmarks_478(head, detect_landmarks(head))))
+def _check_eyeball_turn(rig, head, parts=None):
     assert rig.eyes["L"] is not None and rig.eyes["R"] is not None and 23 not in rig.unsupported
     s = FapStream.empty(1)
     s.set("yaw_l_eyeball", 20000)  # 0.2 rad to the face's left
     v = rig.evaluate(s)[0]
     rows, centre = rig.eyes["L"]
+    if parts is not None:  # the rows are exactly the left eyeball's shell
+        np.testing.assert_array_equal(np.sort(rows), parts["eyeball_L"])
     moved = np.zeros(head.n_vertices, dtype=bool)
     moved[rows] = True
     np.testing.assert_array_equal(v[~moved], head.vertices[~moved])
@@ -187,6 +182,40 @@ def test_eyeballs_turn_on_a_head_that_has_them(fap_rig):
     front = before[:, 2].argmax()  # the front of the eye (the cornea) turns by 0.2 rad about y
     turn = np.arctan2(after[front, 0], after[front, 2]) - np.arctan2(before[front, 0], before[front, 2])
     assert turn == pytest.approx(0.2, abs=1e-6)
+
+
+def test_eyeballs_turn_on_a_head_that_has_them(fap_rig, face):
+    from conftest import ICT, need
+
+    from faceanim.face.default import default_parts
+    from faceanim.face.landmarks import detect_landmarks
+    from faceanim.io.meshio import load_mesh
+    from faceanim.rig.mpeg4 import FapRig
+
+    # the default face is a whole head with eyeballs
+    _check_eyeball_turn(fap_rig, face, default_parts())
+    head = load_mesh(need(ICT / "generic_neutral_mesh.obj"))
+    _check_eyeball_turn(FapRig.build(Face(head, landmarks_478(head, detect_landmarks(head)))), head)
+
+
+def test_a_face_mask_has_no_eyeballs_to_turn(face, face_landmarks):
+    """The default head's skin alone (no inner shells): the eyeball FAPs are reported, as for any
+    face mask, and do nothing."""
+    from faceanim.face.default import default_parts
+    from faceanim.face.mesh import Mesh
+    from faceanim.rig.mpeg4 import FapRig
+
+    skin = default_parts()["skin"]
+    keep = np.all(np.isin(face.faces, skin), axis=1)
+    new = np.full(face.n_vertices, -1)
+    new[skin] = np.arange(skin.size)
+    mask = Mesh(face.vertices[skin], new[face.faces[keep]])
+    rig = FapRig.build(Face(mask, face_landmarks.positions))
+    assert all(rig.eyes[k] is None for k in "LR")
+    assert {23, 24, 25, 26} <= set(rig.unsupported)
+    s = FapStream.empty(1)
+    s.set("yaw_l_eyeball", 20000)
+    np.testing.assert_array_equal(rig.evaluate(s)[0], mask.vertices)
 
 
 def test_glb_linearisation_of_the_jaw_and_head_is_their_exact_derivative(fap_rig, face):
