@@ -31,12 +31,17 @@ def test_mixture_adds_blendshapes(rig, face):
     np.testing.assert_allclose(mix, parts, atol=1e-12)
 
 
-def test_expressions_move_what_they_should(rig, face):
-    smile = rig.pose({"smile": 1.0})
-    assert smile[61, 1] > face.vertices[61, 1] + 0.004 and smile[291, 1] > face.vertices[291, 1] + 0.004
-    a = rig.pose({"A": 1.0})
-    assert a[152, 1] < face.vertices[152, 1] - 0.01  # the chin drops
-    assert np.array_equal(a[10], face.vertices[10])  # the forehead does not move
+def test_expressions_move_what_they_should(rig, face, face_landmarks):
+    # the landmarks lie inside triangles of the head: followed onto each pose
+    rest = face_landmarks.positions
+    smile = face_landmarks.on(rig.pose({"smile": 1.0}), face.faces)
+    assert smile[61, 1] > rest[61, 1] + 0.004 and smile[291, 1] > rest[291, 1] + 0.004  # mouth corners
+    a_pose = rig.pose({"A": 1.0})
+    a = face_landmarks.on(a_pose, face.faces)
+    assert a[152, 1] < rest[152, 1] - 0.01  # the chin drops
+    assert np.array_equal(a[10], rest[10])  # the forehead does not move
+    top = face.faces[face_landmarks.triangles[10]]  # nor do the vertices around it
+    assert np.array_equal(a_pose[top], face.vertices[top])
 
 
 def test_evaluate_matches_pose_per_frame(rig):
