@@ -92,9 +92,10 @@ def face_wires(base_face):
 
 
 def _landmarks(mesh):
-    from faceanim.face.landmarks import Landmarks
+    """The default face's 478 landmarks (on its triangles, not its vertices)."""
+    from faceanim.face.default import default_landmarks
 
-    return Landmarks.from_dict({"points": [{"index": i, "position": mesh.vertices[i].tolist()} for i in range(478)]})
+    return default_landmarks(mesh)
 
 
 def test_default_wires_sit_on_the_face(base_face, face_wires):
@@ -169,7 +170,7 @@ def test_cli_extract_apply_blend(tmp_path, base_face, face_wires, rng, capsys):
     base = tmp_path / "base.obj"
     save_mesh(base_face, base)
     lmf = tmp_path / "lm.json"
-    lmf.write_text(json.dumps({"points": [{"index": i, "position": base_face.vertices[i].tolist()} for i in range(478)]}))
+    lmf.write_text(json.dumps({"points": [{"index": i, "position": p.tolist()} for i, p in enumerate(lm)]}))
     bound = ws.influence(base_face, lm)
     files = []
     for n in range(2):
