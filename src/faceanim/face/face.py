@@ -52,8 +52,8 @@ class Face:
     """A mesh and its 478 MediaPipe landmark positions (``landmarks`` (478, 3), on the surface).
 
     Build one with :meth:`load` (a mesh file, its landmarks from a file or detected) or
-    :meth:`default` (the embedded default face, whose landmarks are its own first 478 vertices:
-    nothing is detected).
+    :meth:`default` (the embedded default face, a whole head whose landmarks are attached to its
+    triangles: nothing is detected).
     """
 
     mesh: Mesh
