@@ -45,9 +45,6 @@ MAX_PHOTO_PIXELS = 40_000_000
 # a front photo turned more than this (degrees of yaw) is not a front view (multiview-photos:
 # front.jpg 0.1, the three-quarter views 24-35; FaceWarehouse's photos within 9)
 MAX_FRONT_YAW = 20.0
-# a side photo turned further than this goes through the profile silhouette (the face mesh's
-# landmarks are unreliable there)
-PROFILE_YAW = 60.0
 # the median reprojection error of a side view (inter-ocular distances) beyond which the views cannot
 # show one head. Measured (front + three-quarter views): one man's own views 0.024; another
 # person's front with his views 0.027-0.054 (FaceWarehouse, the astronaut, four video frames), so
@@ -130,34 +127,31 @@ def read_photo(path: str | os.PathLike, what: str = "photo") -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------- detection
-def detect_view(image: np.ndarray, name: str, role: str, generic_lm: np.ndarray | None = None) -> PhotoView:
+def detect_view(image: np.ndarray, name: str, role: str) -> PhotoView:
     """Find the feature points of one photo: face-mesh landmarks, or for a side photo turned too
-    far for them (a true profile) the midline points of the head's silhouette."""
+    far for them (a true profile, :func:`faceanim.build.profile.is_profile`) the midline points of
+    the head's silhouette."""
     from faceanim.face.landmarks import detect_landmarks_in_image
 
     h, w = image.shape[:2]
-    view = None
+    if role == "side":
+        from faceanim.build.profile import is_profile, profile_points
+
+        if is_profile(image):
+            try:
+                prof = profile_points(image)
+            except LandmarkError as exc:
+                raise LandmarkError(f"side photo '{shown(name)}': {exc}") from None
+            return PhotoView(name, image, role, {int(k): np.asarray(v, float) for k, v in prof.points.items()},
+                             {k: np.asarray(v, float) for k, v in prof.extra.items()}, True, prof.facing)
     try:
         lm = detect_landmarks_in_image(image, scales=(1.0,))
     except LandmarkError:
-        lm = None
-    if lm is not None:
-        pix = np.c_[lm[:, 0] * w, lm[:, 1] * h]
-        mp3 = np.c_[lm[:, 0] * w, lm[:, 1] * h, lm[:, 2] * w]
-        view = PhotoView(name, image, role, {i: pix[i] for i in range(478)}, {}, False, 0, mp3)
-        if role == "front" or generic_lm is None or abs(initial_camera(view, generic_lm).yaw_degrees) < PROFILE_YAW:
-            return view
-    if role == "side":
-        from faceanim.build.profile import profile_points
-
-        try:
-            prof = profile_points(image)
-        except LandmarkError as exc:
-            raise LandmarkError(f"side photo '{shown(name)}': {exc}") from None
-        return PhotoView(name, image, role, {int(k): np.asarray(v, float) for k, v in prof.points.items()},
-                         {k: np.asarray(v, float) for k, v in prof.extra.items()}, True, prof.facing)
-    raise LandmarkError(f"no face found in the {role} photo '{shown(name)}'; give a photo where the face is "
-                        "lit, sharp and fills a good part of the frame")
+        raise LandmarkError(f"no face found in the {role} photo '{shown(name)}'; give a photo where the face is "
+                            "lit, sharp and fills a good part of the frame") from None
+    pix = np.c_[lm[:, 0] * w, lm[:, 1] * h]
+    mp3 = np.c_[lm[:, 0] * w, lm[:, 1] * h, lm[:, 2] * w]
+    return PhotoView(name, image, role, {i: pix[i] for i in range(478)}, {}, False, 0, mp3)
 
 
 # ---------------------------------------------------------------------------------------- corrections
@@ -245,21 +239,36 @@ def initial_camera(view: PhotoView, generic_lm: np.ndarray) -> ViewCamera:
         pix = np.stack([view.points[i] for i in idx])
         off = (pix - cam.project(generic_lm[idx])).mean(0)
         return ViewCamera(r, s, off, view.size)
-    # a profile: nose to the image's left when the subject's left faces the camera (yaw +90)
-    yaw = np.radians(90.0 if view.facing < 0 else -90.0)
-    c, s_ = np.cos(yaw), np.sin(yaw)
-    rot = np.array([[c, 0.0, -s_], [0.0, 1.0, 0.0], [s_, 0.0, c]])
     idx = np.array(sorted(view.points))
-    pts = generic_lm[idx]
-    pix = np.stack([view.points[i] for i in idx])
-    return fit_camera_fixed_rotation(pts, pix, rot, view.size)
+    return fit_profile_camera(generic_lm[idx], np.stack([view.points[i] for i in idx]), view.facing, view.size)
 
 
-def fit_camera_fixed_rotation(points3d, pixels, rot, size) -> ViewCamera:
-    q = (points3d @ rot.T)[:, :2] * np.array([1.0, -1.0])
-    qc, pc = q - q.mean(0), pixels - pixels.mean(0)
-    s = float((qc * pc).sum() / max((qc ** 2).sum(), 1e-12))
-    return ViewCamera(rot, s, pixels.mean(0) - s * q.mean(0), tuple(size))
+def profile_rotation(facing: int) -> np.ndarray:
+    """The camera of a true profile: yaw +90 (the subject's left towards the camera, the nose to
+    the image's left, ``facing`` -1) or -90."""
+    yaw = np.radians(90.0 if facing < 0 else -90.0)
+    d = np.array([np.sin(yaw), 0.0, np.cos(yaw)])  # head -> camera
+    right = np.cross([0.0, 1.0, 0.0], d)
+    return np.vstack([right, np.cross(d, right), d])
+
+
+def fit_profile_camera(points3d: np.ndarray, pixels: np.ndarray, facing: int, size) -> ViewCamera:
+    """A profile's camera from midline points: the yaw is fixed at +-90 degrees (points on the
+    midline plane cannot tell a yaw from a scale), the head's pitch (an in-plane turn of the
+    picture), the scale and the offset are fitted (a 2D similarity, Umeyama)."""
+    r0 = profile_rotation(facing)
+    q = (points3d @ r0.T)[:, :2]  # camera coordinates, y up
+    p = pixels * np.array([1.0, -1.0])
+    qc, pc = q - q.mean(0), p - p.mean(0)
+    u, sv, vt = np.linalg.svd(pc.T @ qc)
+    d = np.sign(np.linalg.det(u @ vt))
+    fix = np.diag([1.0, d])
+    rot2 = u @ fix @ vt
+    s = float((sv * np.diag(fix)).sum() / max((qc ** 2).sum(), 1e-12))
+    t = p.mean(0) - s * rot2 @ q.mean(0)
+    rz = np.eye(3)
+    rz[:2, :2] = rot2
+    return ViewCamera(rz @ r0, s, t * np.array([1.0, -1.0]), tuple(size))
 
 
 @dataclass
@@ -324,9 +333,9 @@ def reconstruct(views: list[PhotoView], prior: np.ndarray, normals: np.ndarray, 
         # gauge: back into the generic head's frame and size
         s, r, t = similarity(x[SURFACE_LANDMARKS], prior[SURFACE_LANDMARKS])
         x = s * x @ r.T + t
-        # cameras given the points
-        cams = [fit_camera(x[rows], pix, v.size) for v, (rows, pix) in zip(views, obs)]
-        # the profile keeps its rotation about the vertical axis only when it has few points
+        # cameras given the points (a profile's points lie on the midline: its yaw stays +-90)
+        cams = [fit_profile_camera(x[rows], pix, v.facing, v.size) if v.profile else fit_camera(x[rows], pix, v.size)
+                for v, (rows, pix) in zip(views, obs)]
     iod = float(np.linalg.norm(x[OUTER_EYE_CORNERS[0]] - x[OUTER_EYE_CORNERS[1]]))
     errors = [np.linalg.norm(cam.project(x[rows]) - pix, axis=1) / (cam.scale * iod)
               for cam, (rows, pix) in zip(cams, obs)]
@@ -562,7 +571,7 @@ class PhotoHead:
         return dict(self.face().feature_points.positions)
 
 
-def load_views(front, sides=(), generic_lm=None) -> list[PhotoView]:
+def load_views(front, sides=()) -> list[PhotoView]:
     """Read and detect the photos (paths or (name, image) pairs): the front first."""
     views = []
     for role, item in [("front", front)] + [("side", s) for s in sides]:
@@ -570,7 +579,7 @@ def load_views(front, sides=(), generic_lm=None) -> list[PhotoView]:
             name, image = item
         else:
             name, image = str(item), read_photo(item, f"{role} photo")
-        views.append(detect_view(image, name, role, generic_lm))
+        views.append(detect_view(image, name, role))
     return views
 
 
@@ -597,7 +606,7 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
     t0 = time.perf_counter()
     head = generic_head()
     prior, normals = prior_points(head)
-    views = load_views(front, sides, prior[:478])
+    views = load_views(front, sides)
     if points is not None:
         spec = read_json(points, "points file") if isinstance(points, (str, os.PathLike)) else points
         apply_corrections(views, spec, "points file")
