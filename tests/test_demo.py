@@ -14,11 +14,12 @@ def test_demo_writes_glb_mp4_and_pngs(tmp_path, capsys):
     names = {p.name for p in out.iterdir()}
     gde = ["smile", "sadness", "anger", "A"]
     facs = [f"facs_{e}" for e in ("joy", "sadness", "surprise", "fear", "anger", "disgust")]
-    assert names == {"demo.glb", "demo.mp4", "neutral.png"} | {f"{n}.png" for n in gde + facs}
-    assert "wrote 13 files" in capsys.readouterr().out
+    head = ["blink", "jaw_open"]  # the head's own shapes: lids over its eyeballs, the jaw onto its teeth
+    assert names == {"demo.glb", "demo.mp4", "neutral.png"} | {f"{n}.png" for n in gde + facs + head}
+    assert "wrote 15 files" in capsys.readouterr().out
 
     gltf = pygltflib.GLTF2().load(str(out / "demo.glb"))
-    assert gltf.meshes[0].extras["targetNames"] == gde + facs
+    assert gltf.meshes[0].extras["targetNames"] == gde + facs + head
     n_keys = gltf.accessors[gltf.animations[0].samplers[0].input].count
 
     reader = imageio_ffmpeg.read_frames(str(out / "demo.mp4"))
@@ -27,7 +28,7 @@ def test_demo_writes_glb_mp4_and_pngs(tmp_path, capsys):
     assert sum(1 for _ in reader) == n_keys  # one video frame per animation sample
 
     neutral = np.asarray(Image.open(out / "neutral.png")).astype(float)
-    for name in gde + facs:
+    for name in gde + facs + head:
         img = np.asarray(Image.open(out / f"{name}.png")).astype(float)
         changed = np.abs(img - neutral).mean(-1) > 20
         assert 20 < changed.sum() < 0.25 * changed.size  # the face changed, locally
