@@ -334,3 +334,26 @@ def test_a_true_profile_gives_the_depth_of_the_midline(yaw):
     generic = protrusion(prior, np.linalg.norm(prior[33] - prior[263]))
     assert abs(got - want) < 0.05
     assert abs(got - want) < abs(generic - want)
+
+
+def test_a_saved_photo_head_loads_with_its_landmarks_not_detected(tmp_path, monkeypatch):
+    """A head with the generic head's topology (written by faceanim photo, or the default face)
+    carries its landmarks in its triangles: Face.load reads them off without detection, exactly;
+    any other mesh is still detected."""
+    import faceanim.face.landmarks as L
+    from faceanim.face.default import default_face, default_landmarks
+    from faceanim.face.face import Face
+    from faceanim.face.mesh import Mesh
+    from faceanim.io.meshio import save_mesh
+
+    mesh = default_face()
+    save_mesh(mesh, tmp_path / "head.obj")
+
+    def no_detection(*a, **k):
+        raise AssertionError("detection was run")
+
+    monkeypatch.setattr(L, "detect_landmarks", no_detection)
+    face = Face.load(tmp_path / "head.obj")
+    np.testing.assert_allclose(face.landmarks, default_landmarks(mesh).positions, atol=1e-6)
+    other = Mesh(mesh.vertices, mesh.faces[:-1])  # one triangle fewer: not the generic topology
+    assert generic_head().landmarks_on(other) is None

@@ -78,7 +78,9 @@ class Face:
     def load(cls, path=None, landmarks=None, forward: str = "+z", up: str = "+y") -> Face:
         """A face from a mesh file (``None`` or ``"default"``: the embedded default face) and its
         landmarks: from a JSON file (the 478 points or the basic 22, snapped onto the mesh) or,
-        without one, detected by rendering the mesh and running MediaPipe."""
+        without one, read off the topology of a head made from the generic head (``faceanim
+        photo``, the default face: its landmarks sit on known triangles), or else detected by
+        rendering the mesh and running MediaPipe."""
         from faceanim.face.landmarks import Landmarks, detect_landmarks
         from faceanim.io.meshio import load_mesh
 
@@ -93,6 +95,11 @@ class Face:
         if landmarks is not None:
             lms = Landmarks.load(landmarks).attached_to(mesh)
         else:
+            from faceanim.face.generic_head import generic_head
+
+            known = generic_head().landmarks_on(mesh)
+            if known is not None:
+                return cls(mesh, known)
             lms = detect_landmarks(mesh, forward=forward, up=up)
         return cls(mesh, landmarks_478(mesh, lms))
 

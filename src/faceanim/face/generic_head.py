@@ -50,6 +50,15 @@ class GenericHead:
         corners = v[self.mesh.faces[self.landmark_triangles]]  # (478, 3, 3)
         return np.einsum("lk,lkd->ld", self.landmark_barycentric, corners)
 
+    def landmarks_on(self, mesh: Mesh) -> np.ndarray | None:
+        """(478, 3) landmarks of ``mesh`` if it has this head's topology (a head fitted from it:
+        same vertex count and triangles), else None."""
+        if mesh.n_vertices != self.mesh.n_vertices or mesh.faces.shape != self.mesh.faces.shape:
+            return None
+        if not np.array_equal(mesh.faces, self.mesh.faces):
+            return None
+        return self.landmarks(mesh.vertices)
+
     def landmark_matrix(self) -> sp.csr_matrix:
         """(478, V) sparse matrix with ``landmarks(v) == L @ v``."""
         rows = np.repeat(np.arange(478), 3)
