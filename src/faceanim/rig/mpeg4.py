@@ -33,7 +33,8 @@ from faceanim.rig.rig import Rig, RigidPart
 
 # influence radius of a FAP's feature point by FAP group: (factor, FAPU); within PLATEAU of the
 # radius the weight is 1 (a lid or brow moves as a piece), then it falls off as a raised cosine
-RADIUS = {2: (0.45, "MW"), 3: (0.4, "ES"), 4: (0.35, "ES"), 5: (0.35, "ES"), 8: (0.45, "MW"),
+# (the brows reach over the forehead: frontalis and corrugator move skin far above the brow)
+RADIUS = {2: (0.45, "MW"), 3: (0.4, "ES"), 4: (0.7, "ES"), 5: (0.35, "ES"), 8: (0.45, "MW"),
           9: (0.25, "ES"), 10: (0.25, "ES")}
 PLATEAU = 0.3
 # feature points on one side of a slit: (slit, lower side?)
@@ -43,8 +44,8 @@ SIDE = {"2.2": ("mouth", False), "2.6": ("mouth", False), "2.7": ("mouth", False
         "8.7": ("mouth", True), "8.8": ("mouth", True),
         "3.1": ("eye_L", False), "3.3": ("eye_L", True), "3.2": ("eye_R", False), "3.4": ("eye_R", True)}
 # feature points along one lip contour or brow: a FAP at one of them falls off to zero at its
-# neighbours (a raised cosine over the gap), so neighbouring FAPs share the skin between them like
-# hat functions and each feature point moves by its own FAP alone
+# neighbours along the chain (a smooth hat over the chain's polyline), so neighbouring FAPs share
+# the skin between them and each feature point moves by its own FAP alone (_chain_weight)
 CHAINS = (("2.5", "2.7", "2.2", "2.6", "2.4"), ("2.5", "2.9", "2.3", "2.8", "2.4"),
           ("8.4", "8.6", "8.1", "8.5", "8.3"), ("8.4", "8.8", "8.2", "8.7", "8.3"),
           ("4.1", "4.3", "4.5"), ("4.2", "4.4", "4.6"))
@@ -79,6 +80,7 @@ JAW_BAND_START, JAW_BAND_WIDTH = 0.6, 0.8
 JAW_BAND_HEIGHT = 0.35
 JAW_EAR_FADE = 0.35
 WEIGHT_FLOOR = 1e-6  # FaceDefTable weights below this are dropped (sparse blendshapes)
+BROW_GROUP = 4  # the FAP group of the eyebrows
 
 
 def _find_eyeballs(mesh: Mesh, fp: FeaturePoints, on_skin: np.ndarray) -> dict:
@@ -129,6 +131,41 @@ def _lid_band(mesh: Mesh, fp: FeaturePoints, lid: str, refs: tuple[str, str, str
     return along * across
 
 
+def _chain_weight(p: str, points: dict, gaps: dict[str, float], radius: float, distance,
+                  vertices: np.ndarray) -> np.ndarray:
+    """Weight (V,) of chain point ``p``: its share of the chain times one envelope of the whole
+    chain. The share comes from where a vertex projects onto the chain's polyline: a smooth hat
+    along it (1 at ``p``, 0 at its neighbours, neighbouring shares summing to 1); the envelope is a
+    raised cosine over ``radius`` from the nearest chain point along the skin. The chain moves as a
+    smooth band that fades over the FAP's radius across the face, not over the small gap between
+    its points, and each feature point still moves by its own FAP alone."""
+    chain = next(c for c in CHAINS if p in c and all(q in gaps for q in c))
+    d = np.stack([distance(q, radius) for q in chain])  # (n, V), inf beyond the radius
+    nearest = d.min(axis=0)
+    envelope = np.where(np.isfinite(nearest), _falloff(nearest, radius, PLATEAU), 0.0)
+    rows = np.flatnonzero(envelope > 0)
+    x = vertices[rows]
+    nodes = np.stack([points[q] for q in chain])
+    best = np.full(len(rows), np.inf)
+    share = np.zeros(len(rows))
+    k = chain.index(p)
+    for j in range(len(chain) - 1):  # segment j runs from node j to node j + 1
+        a, b = nodes[j], nodes[j + 1]
+        t = np.clip((x - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-18), 0.0, 1.0)
+        dist = np.linalg.norm(x - (a + t[:, None] * (b - a)), axis=1)
+        closer = dist < best
+        best[closer] = dist[closer]
+        value = np.zeros(len(rows))
+        if k == j:
+            value = 1.0 - smoothstep(t)
+        elif k == j + 1:
+            value = smoothstep(t)
+        share[closer] = value[closer]
+    out = np.zeros(len(vertices))
+    out[rows] = share * envelope[rows]
+    return out
+
+
 def _chain_gaps(fp: FeaturePoints) -> dict[str, float]:
     """For each feature point on a chain, the distance to its nearest chain neighbour."""
     gaps: dict[str, float] = {}
@@ -170,6 +207,20 @@ class FapRig(Rig):
         _, near = mesh.kdtree.query(np.stack([p for p in fp.positions.values()]))
         vertex_of = dict(zip(fp.positions, near))
         gaps = _chain_gaps(fp)
+        # the brows move the forehead, fading out from the brow down to the eyes' midline (the
+        # eyelids have FAPs of their own)
+        local_y = frame.to_local(mesh.vertices)[:, 1]
+        eye_y = np.mean([frame.to_local(fp[p])[1] for p in ("3.5", "3.6")])
+        brow_y = np.mean([frame.to_local(fp[p])[1] for p in ("4.3", "4.4")])
+        above_eyes = smoothstep((local_y - eye_y) / max(brow_y - eye_y, 1e-9))
+        cache: dict = {}
+
+        def distance(p: str, limit: float) -> np.ndarray:
+            key = (p, limit)
+            if key not in cache:
+                cache[key] = graph_distance(mesh, np.array([vertex_of[p]]), limit=limit)
+            return cache[key]
+
         for f in faps():
             n = f.number
             if f.is_high_level:
@@ -194,14 +245,18 @@ class FapRig(Rig):
             radius = factor * fp.fapu[unit_name]
             d = direction_vector(f) @ frame.rotation  # face frame -> mesh
             for p in f.feature_points:
-                r, plateau = (min(radius, gaps[p]), 0.0) if p in gaps else (radius, PLATEAU)
-                dist = graph_distance(mesh, np.array([vertex_of[p]]), limit=r)
-                w = np.where(np.isfinite(dist), _falloff(dist, r, plateau), 0.0) * on_skin
+                if p in gaps:
+                    w = _chain_weight(p, fp.positions, gaps, radius, distance, mesh.vertices) * on_skin
+                else:
+                    dist = distance(p, radius)
+                    w = np.where(np.isfinite(dist), _falloff(dist, radius, PLATEAU), 0.0) * on_skin
                 if p in SIDE:
                     slit, lower = SIDE[p]
                     w = w * (sides[slit] == lower)
                 if p in LIDS:
                     w = w * _lid_band(mesh, fp, p, LIDS[p])
+                if f.group == BROW_GROUP:
+                    w = w * above_eyes
                 idx = np.flatnonzero(w > WEIGHT_FLOOR)
                 for axis in range(3):
                     rows.append(np.full(len(idx), n - 1))
