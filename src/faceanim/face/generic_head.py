@@ -98,5 +98,6 @@ def generic_head() -> GenericHead:
     names = tuple(str(n) for n in data["shape_names"])
     shapes = {n: (data[f"shape_rows_{n}"].astype(np.int64), data[f"shape_delta_{n}"].astype(np.float64))
               for n in names}
-    return GenericHead(mesh, parts, data["landmark_triangles"].astype(np.int64),
-                       data["landmark_barycentric"].astype(np.float64), names, shapes)
+    bary = data["landmark_barycentric"].astype(np.float64)
+    bary /= bary.sum(axis=1, keepdims=True)  # stored as float32: sum exactly to 1 again
+    return GenericHead(mesh, parts, data["landmark_triangles"].astype(np.int64), bary, names, shapes)
