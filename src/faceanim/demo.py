@@ -31,6 +31,10 @@ from faceanim.rig.expressions import Expression, expression_rig
 from faceanim.rig.rig import Rig
 
 
+# the demo's pictures frame the face oval with this margin: the whole head, the neck cut off
+HEAD_MARGIN = 1.9
+
+
 def demo_expressions(lm) -> list[Expression]:
     """Smile, sadness, anger and 'A' as GDE sets on a face with MediaPipe-478 landmarks ``lm``."""
 
@@ -87,7 +91,7 @@ def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = DEFAULT_FPS, si
     written = [write_rig_gltf(rig, curves, out / "demo.glb", fps, "expressions", names=rig.controls)]
 
     show = not quiet and sys.stderr.isatty()
-    with OffscreenRenderer(face.mesh, size=(size, size), yaw=15.0, pitch=4.0) as renderer:
+    with OffscreenRenderer(face.mesh, size=(size, size), **face.view(margin=HEAD_MARGIN, yaw=20.0, pitch=4.0)) as renderer:
         written.append(save_png(out / "neutral.png", renderer.render()))
         for name in rig.controls:
             written.append(save_png(out / f"{name}.png", renderer.render(rig.pose({name: 1.0}))))
