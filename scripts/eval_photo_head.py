@@ -29,10 +29,10 @@ from faceanim.build.photo import (
     load_views,
     prior_points,
     reconstruct,
-    similarity,
 )
 from faceanim.face.face import Face, landmarks_478
 from faceanim.face.fdp import fdp_spec
+from faceanim.face.frame import similarity
 from faceanim.face.generic_head import generic_head
 from faceanim.face.landmarks import detect_landmarks
 from faceanim.io.meshio import load_mesh

@@ -32,7 +32,10 @@ def astronaut(tmp_path_factory) -> Path:
 
 
 def run(args) -> int:
-    return main([str(a) for a in args])
+    try:
+        return main([str(a) for a in args])
+    except SystemExit as exc:  # argparse's own refusals
+        return exc.code
 
 
 def test_one_front_photo_gives_a_textured_head_with_the_generic_topology(tmp_path, astronaut, capsys):
@@ -45,8 +48,19 @@ def test_one_front_photo_gives_a_textured_head_with_the_generic_topology(tmp_pat
     assert m.n_vertices == g.mesh.n_vertices
     np.testing.assert_array_equal(m.faces, g.mesh.faces)
     assert m.texture is not None and m.texture.shape[:2] == (1024, 1024)
-    # the face's colours come from the photo: the skin around the nose is skin-coloured, not the
-    # grey fill of an unseen texel (red above blue, as skin is)
+    # the face's colours come from the photo: at the nose tip's triangle the atlas holds skin (red
+    # well above blue, bright), as the photo shows there
+    from skimage import data
+
+    tri = g.landmark_triangles[4]
+    uv = m.uv[m.face_uv[tri]].mean(0)
+    h, w = m.texture.shape[:2]
+    texel = m.texture[int((1 - uv[1]) * h), int(uv[0] * w)].astype(int)
+    lm = g.landmarks(m.vertices)
+    assert texel[0] > texel[2] + 30 and texel[0] > 120, texel
+    photo_nose = data.astronaut()[119:133, 217:231].reshape(-1, 3).mean(0)  # the nose tip in the photo
+    assert np.abs(texel - photo_nose).max() < 60, (texel, photo_nose)
+    assert lm.shape == (478, 3)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["head.mtl", "head.obj", "head.texture.png"]
 
 
@@ -105,12 +119,19 @@ def test_bad_input(tmp_path, astronaut, capsys):
         (["photo", "--front", tmp_path / "missing.jpg", "-o", out], "does not exist"),
         (["photo", "--front", astronaut, "--points", bad_points, "-o", out], "unknown point '77.7'"),
         (["photo", "--front", astronaut, "--rig", "-o", tmp_path / "o.obj"], "only a .glb holds"),
-        (["photo", "--front", astronaut, "--texture-size", "100000", "-o", out], "--texture-size"),
+        (["photo", "--front", astronaut, "--texture-size", "4096", "-o", out], "--texture-size"),
+        (["photo", "--front", astronaut, "-o", tmp_path / "o.ply"], "must end in one of"),
         (["photo", "--front", astronaut, "--side", astronaut, "-o", out], "shows the head from the front"),
         (["photo", "--front", astronaut, "-o", tmp_path / "no" / "o.glb"], "folder"),
     ]
     for args, match in cases:
         _one_line_and_nothing(tmp_path, capsys, args, match)
+    # the output named as an input: refused, the photo kept
+    copy = tmp_path / "copy.png"
+    copy.write_bytes(Path(astronaut).read_bytes())
+    before = copy.read_bytes()
+    assert run(["photo", "--front", copy, "-o", tmp_path / "copy.png"]) == 2
+    assert "also an input" in capsys.readouterr().err and copy.read_bytes() == before
 
 
 @needs_photos

@@ -6,7 +6,6 @@ the data's README states)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +14,7 @@ import pytest
 from faceanim.build import photo as P
 from faceanim.build.camera import ViewCamera
 from faceanim.errors import FaceAnimError, InputFileError, LandmarkError
+from faceanim.face.frame import similarity
 from faceanim.face.generic_head import generic_head
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -42,7 +42,7 @@ def test_similarity_recovers_a_known_transform():
     src = rng.normal(size=(50, 3))
     r = random_rotation(rng)
     dst = 2.5 * src @ r.T + np.array([1.0, -2.0, 0.5])
-    s, r2, t = P.similarity(src, dst)
+    s, r2, t = similarity(src, dst)
     assert s == pytest.approx(2.5)
     np.testing.assert_allclose(r2, r, atol=1e-10)
     np.testing.assert_allclose(t, [1.0, -2.0, 0.5], atol=1e-10)
@@ -140,8 +140,6 @@ def _fake_reconstruction(head, points):
 
 @pytest.mark.parametrize("method", ["rbf", "dffd"])
 def test_fit_head_meets_its_control_points_and_keeps_parts_rigid(method):
-    if method == "dffd":
-        pytest.importorskip("faceanim.deform.ffd")
     head = generic_head()
     prior, _ = P.prior_points(head)
     rng = np.random.default_rng(3)
@@ -288,12 +286,51 @@ def test_unknown_method_is_refused():
         P.head_from_photos(("f", np.zeros((64, 64, 3), np.uint8)), method="magic")
 
 
-def test_points_file_is_read_as_json(tmp_path):
-    f = tmp_path / "p.json"
-    f.write_text(json.dumps({"front": {"9.3": [1, 2]}}))
-    from faceanim.io.files import read_json
+def test_a_correction_moves_the_rebuilt_point_to_the_given_pixel():
+    """--points: the corrected nose tip (FDP 9.3) is where the rebuilt head's nose tip projects
+    in the front photo, 6 px from where it was detected."""
+    head = generic_head()
+    prior, normals = P.prior_points(head)
+    views = synthetic_views(head.landmarks())
+    want = views[0].points[4] + np.array([6.0, -4.0])
+    P.apply_corrections(views, {"front": {"9.3": want.tolist()}})
+    rec = P.reconstruct(views, prior, normals)
+    got = rec.cameras[0].project(rec.points[[4]])[0]
+    assert np.linalg.norm(got - want) < 0.5
 
-    assert read_json(f)["front"]["9.3"] == [1, 2]
+
+def test_two_side_photos_of_one_side_are_refused():
+    head = generic_head()
+    prior, normals = P.prior_points(head)
+    views = synthetic_views(head.landmarks(), yaws=(0.0, 35.0, 30.0))
+    rec = P.reconstruct(views, prior, normals)
+    with pytest.raises(LandmarkError, match="same side of the head"):
+        P.check_views(views, rec)
+    views = synthetic_views(head.landmarks(), yaws=(0.0, 35.0, -30.0))
+    P.check_views(views, P.reconstruct(views, prior, normals))  # one of each side: fine
+
+
+def test_odd_photos_are_read_or_refused_in_one_line(tmp_path):
+    from PIL import Image
+
+    grey16 = (np.linspace(0, 65535, 64 * 48).reshape(48, 64)).astype(np.uint16)
+    Image.fromarray(grey16).save(tmp_path / "g16.png")
+    rgb = P.read_photo(tmp_path / "g16.png")
+    assert rgb.dtype == np.uint8 and rgb.shape == (48, 64, 3)
+    assert rgb[0, 0, 0] < 5 and rgb[-1, -1, 0] > 250  # the full 16-bit range, not clipped white
+    big = tmp_path / "big.png"
+    Image.new("L", (8000, 5500)).save(big)  # 44 million pixels, each side under the limit
+    with pytest.raises(InputFileError, match="44 million pixels; give at most 40 million"):
+        P.read_photo(big)
+    with pytest.raises(InputFileError, match="not a regular file"):
+        P.read_photo("/dev/null")
+    with pytest.raises(InputFileError, match="path is empty"):
+        P.read_photo("")
+    head = generic_head()
+    views = synthetic_views(head.landmarks())
+    for name in ("mp:\u00b2", "mp:\u0663", "mp:0004", "mp: 4"):
+        with pytest.raises(InputFileError, match="unknown point"):
+            P.apply_corrections(views, {"front": {name: [1.0, 2.0]}})
 
 
 FACEWAREHOUSE = DATA / "facewarehouse-tester1"

@@ -25,9 +25,11 @@ class InputFileError(FaceAnimError):
     """A JSON or other input file is missing or malformed."""
 
 
-def shown(value, limit: int = 40) -> str:
+def shown(value, limit: int = 40, tail: bool = False) -> str:
     """A user-given name or token as it may appear in a one-line message: printable characters
     only (a terminal escape code in a file cannot reach the user's terminal), at most ``limit``
-    long."""
+    long: its start, or with ``tail`` its end (a path's file name)."""
     s = "".join(c if c.isprintable() else "?" for c in str(value))
-    return s if len(s) <= limit else s[:limit - 3] + "..."
+    if len(s) <= limit:
+        return s
+    return "..." + s[-(limit - 3):] if tail else s[:limit - 3] + "..."

@@ -11,7 +11,11 @@ The paper's cloning half, step by step:
    and the 3D points together, alternating two linear least-squares steps (points given the
    cameras: a triangulation, with the generic head as a weak prior that fills what no photo sees,
    e.g. depth from a single front photo; cameras given the points: an affine fit projected onto
-   a scaled rotation). The MPEG-4 feature points (FDPs) are read off the 3D landmarks.
+   a scaled rotation; a profile's yaw stays at 90 degrees). The front photo and a profile's
+   silhouette points steer the 3D points; three-quarter views are measured to mislead depth (the
+   face mesh's landmarks slide as the face turns, ``THREE_QUARTER_WEIGHT``) and give their
+   camera, their texture and a check that the views agree. The MPEG-4 feature points (FDPs) are
+   read off the 3D landmarks.
 3. **Head modification** (2.1.2): the generic head (:mod:`faceanim.face.generic_head`) is moved
    by a global affine fit and then warped onto the 3D points by **Dirichlet free-form
    deformation** (Sibson coordinates, with the paper's 27 extra points around the head) or, as the
@@ -28,17 +32,24 @@ The paper's cloning half, step by step:
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from faceanim.build.camera import ViewCamera
 from faceanim.errors import FaceAnimError, InputFileError, LandmarkError, shown
+from faceanim.face.frame import similarity
 
 # the face mesh's 468 surface points (468..477 are the irises, which sit on the eyeballs)
 SURFACE_LANDMARKS = np.arange(468)
 OUTER_EYE_CORNERS = (33, 263)
+# texture atlas pixels per side: a 2048 atlas from 4000 px photos needs about 1.5 GB (4096: 5 GB)
+MAX_TEXTURE_SIZE = 2048
+# characters of a path shown in a message (the end: the file name is what tells photos apart)
+PATH_SHOWN = 80
 # photos: the largest side we read (a phone photo is ~4000 px; detection works on far less)
 MAX_PHOTO_SIDE = 8192
 MAX_PHOTO_PIXELS = 40_000_000
@@ -57,7 +68,8 @@ MIN_SIDE_TURN = 15.0
 PRIOR_WEIGHT = 0.02
 # the face mesh's landmarks slide over the face as it turns: in a three-quarter view they sit
 # 0.03-0.09 inter-ocular distances from where the front view puts the same point (FaceWarehouse
-# renders with known cameras), so those views count this much against the front
+# renders with known cameras), and triangulating them made depth worse than the generic head's
+# (0.045 against 0.032 IOD at any weight tried: 0.1, 0.25, 1): so they steer no 3D point
 THREE_QUARTER_WEIGHT = 0.0
 # where a landmark faces away from a camera it is occluded in that view: cos(angle) below this
 VISIBLE_COS = 0.15
@@ -98,30 +110,54 @@ class PhotoView:
 
 
 # ---------------------------------------------------------------------------------------- reading
+def _named(path) -> str:
+    """A photo's path as a message shows it: printable, its end kept (the file name)."""
+    return shown(path, PATH_SHOWN, tail=True)
+
+
 def read_photo(path: str | os.PathLike, what: str = "photo") -> np.ndarray:
-    """An RGB photo as (H, W, 3) uint8, turned upright by its EXIF orientation."""
+    """An RGB photo as (H, W, 3) uint8, turned upright by its EXIF orientation (8- and 16-bit,
+    grey, palette, RGBA, CMYK)."""
+    import warnings
+
     from PIL import Image, ImageOps, UnidentifiedImageError
 
     p = Path(path)
+    name = _named(p)
+    if str(path) == "":
+        raise InputFileError(f"{what}: the path is empty; give an image file (JPEG or PNG)")
+    if not p.exists():
+        raise InputFileError(f"{what} '{name}' does not exist; check the path")
+    if p.is_dir():
+        raise InputFileError(f"{what} '{name}' is a folder; give an image file (JPEG or PNG)")
     if not p.is_file():
-        if p.is_dir():
-            raise InputFileError(f"{what} '{shown(p)}' is a folder; give an image file (JPEG or PNG)")
-        raise InputFileError(f"{what} '{shown(p)}' does not exist; check the path")
-    Image.MAX_IMAGE_PIXELS = MAX_PHOTO_PIXELS
+        raise InputFileError(f"{what} '{name}' is not a regular file; give an image file (JPEG or PNG)")
     try:
-        with Image.open(p) as im:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Pillow's decompression-bomb warning: checked below
+            im = Image.open(p)  # reads the header only
+        with im:
             w, h = im.size
-            if max(w, h) > MAX_PHOTO_SIDE or w * h > MAX_PHOTO_PIXELS:
-                raise InputFileError(f"{what} '{shown(p)}' is {w}x{h} pixels; give at most "
-                                     f"{MAX_PHOTO_SIDE} pixels a side (scale it down first)")
+            if max(w, h) > MAX_PHOTO_SIDE:
+                raise InputFileError(f"{what} '{name}' is {w}x{h} pixels; give at most {MAX_PHOTO_SIDE} pixels a "
+                                     "side (scale it down first)")
+            if w * h > MAX_PHOTO_PIXELS:
+                raise InputFileError(f"{what} '{name}' has {w * h / 1e6:.0f} million pixels; give at most "
+                                     f"{MAX_PHOTO_PIXELS / 1e6:.0f} million (scale it down first)")
             if min(w, h) < 32:
-                raise InputFileError(f"{what} '{shown(p)}' is {w}x{h} pixels; a face needs at least 32 a side")
+                raise InputFileError(f"{what} '{name}' is {w}x{h} pixels; a face needs at least 32 a side")
+            im.load()
             im = ImageOps.exif_transpose(im)
+            if im.mode in ("I", "I;16", "I;16B", "I;16L", "F"):  # 16-bit or float grey: scale to 8 bits
+                a = np.asarray(im, dtype=np.float64)
+                top = 65535.0 if im.mode != "F" and a.max() > 255 else max(float(a.max()), 1.0)
+                a = np.clip(a / top * 255.0, 0, 255).astype(np.uint8)
+                im = Image.fromarray(a, "L")
             rgb = np.asarray(im.convert("RGB"), dtype=np.uint8).copy()
     except InputFileError:
         raise
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError, Image.DecompressionBombError):
-        raise InputFileError(f"{what} '{shown(p)}' is not a readable image (corrupt or not JPEG/PNG); "
+        raise InputFileError(f"{what} '{name}' is not a readable image (corrupt or not JPEG/PNG); "
                              "give a JPEG or PNG photo") from None
     return rgb
 
@@ -141,13 +177,13 @@ def detect_view(image: np.ndarray, name: str, role: str) -> PhotoView:
             try:
                 prof = profile_points(image)
             except LandmarkError as exc:
-                raise LandmarkError(f"side photo '{shown(name)}': {exc}") from None
+                raise LandmarkError(f"side photo '{_named(name)}': {exc}") from None
             return PhotoView(name, image, role, {int(k): np.asarray(v, float) for k, v in prof.points.items()},
                              {k: np.asarray(v, float) for k, v in prof.extra.items()}, True, prof.facing)
     try:
         lm = detect_landmarks_in_image(image, scales=(1.0,))
     except LandmarkError:
-        raise LandmarkError(f"no face found in the {role} photo '{shown(name)}'; give a photo where the face is "
+        raise LandmarkError(f"no face found in the {role} photo '{_named(name)}'; give a photo where the face is "
                             "lit, sharp and fills a good part of the frame") from None
     pix = np.c_[lm[:, 0] * w, lm[:, 1] * h]
     mp3 = np.c_[lm[:, 0] * w, lm[:, 1] * h, lm[:, 2] * w]
@@ -182,7 +218,7 @@ def apply_corrections(views: list[PhotoView], spec: object, source: str = "point
         for name, xy in points.items():
             ok = isinstance(xy, (list, tuple)) and len(xy) == 2 and all(
                 isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in xy)
-            if not ok or not (-w <= xy[0] <= 2 * w and -h <= xy[1] <= 2 * h):
+            if not ok or not (0 <= xy[0] <= w and 0 <= xy[1] <= h):
                 raise InputFileError(f"{source}: point '{shown(name)}' of '{shown(key)}' must be [x, y] pixels "
                                      f"inside the {w}x{h} photo")
             p = np.array(xy, dtype=np.float64)
@@ -191,7 +227,7 @@ def apply_corrections(views: list[PhotoView], spec: object, source: str = "point
             elif name in fdps:
                 for i in fdps[name]:
                     view.points[int(i)] = p
-            elif isinstance(name, str) and name.startswith("mp:") and name[3:].isdigit() and int(name[3:]) < 478:
+            elif isinstance(name, str) and re.fullmatch(r"mp:[0-9]{1,3}", name) and int(name[3:]) < 478:
                 view.points[int(name[3:])] = p
             else:
                 raise InputFileError(f"{source}: unknown point '{shown(name)}'; name MPEG-4 feature points "
@@ -200,18 +236,6 @@ def apply_corrections(views: list[PhotoView], spec: object, source: str = "point
 
 
 # ---------------------------------------------------------------------------------------- geometry
-def similarity(src: np.ndarray, dst: np.ndarray, scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
-    """Least-squares ``dst ~ s * R @ src + t`` (Umeyama 1991): returns (s, R, t)."""
-    ms, md = src.mean(0), dst.mean(0)
-    a, b = src - ms, dst - md
-    u, sv, vt = np.linalg.svd(b.T @ a)
-    d = np.sign(np.linalg.det(u @ vt))
-    fix = np.diag([1.0, 1.0, d])
-    r = u @ fix @ vt
-    s = float((sv * np.diag(fix)).sum() / (a ** 2).sum()) if scale else 1.0
-    return s, r, md - s * r @ ms
-
-
 def fit_camera(points3d: np.ndarray, pixels: np.ndarray, size, weights=None) -> ViewCamera:
     """The scaled orthographic camera that best maps ``points3d`` onto ``pixels``."""
     w = np.ones(len(pixels)) if weights is None else weights
@@ -258,14 +282,7 @@ def fit_profile_camera(points3d: np.ndarray, pixels: np.ndarray, facing: int, si
     picture), the scale and the offset are fitted (a 2D similarity, Umeyama)."""
     r0 = profile_rotation(facing)
     q = (points3d @ r0.T)[:, :2]  # camera coordinates, y up
-    p = pixels * np.array([1.0, -1.0])
-    qc, pc = q - q.mean(0), p - p.mean(0)
-    u, sv, vt = np.linalg.svd(pc.T @ qc)
-    d = np.sign(np.linalg.det(u @ vt))
-    fix = np.diag([1.0, d])
-    rot2 = u @ fix @ vt
-    s = float((sv * np.diag(fix)).sum() / max((qc ** 2).sum(), 1e-12))
-    t = p.mean(0) - s * rot2 @ q.mean(0)
+    s, rot2, t = similarity(q, pixels * np.array([1.0, -1.0]))
     rz = np.eye(3)
     rz[:2, :2] = rot2
     return ViewCamera(rz @ r0, s, t * np.array([1.0, -1.0]), tuple(size))
@@ -348,18 +365,23 @@ def check_views(views: list[PhotoView], rec: Reconstruction) -> None:
     front = rec.cameras[0]
     if abs(front.yaw_degrees) > MAX_FRONT_YAW:
         raise LandmarkError(
-            f"the front photo '{shown(views[0].name)}' shows the head turned {abs(front.yaw_degrees):.0f} degrees; "
+            f"the front photo '{_named(views[0].name)}' shows the head turned {abs(front.yaw_degrees):.0f} degrees; "
             "give a frontal photo as --front (side and three-quarter views go to --side)")
+    turns = [cam.yaw_degrees - front.yaw_degrees for cam in rec.cameras[1:]]
+    if len(turns) == 2 and np.sign(turns[0]) == np.sign(turns[1]):
+        raise LandmarkError(
+            f"both side photos ('{_named(views[1].name)}', '{_named(views[2].name)}') show the same side of the "
+            "head; give one view of each side (or one side photo)")
     for v, cam, err in zip(views[1:], rec.cameras[1:], rec.errors[1:]):
         turn = abs(cam.yaw_degrees - front.yaw_degrees)
         if turn < MIN_SIDE_TURN:
             raise LandmarkError(
-                f"the side photo '{shown(v.name)}' shows the head from the front (turned {turn:.0f} degrees from the "
+                f"the side photo '{_named(v.name)}' shows the head from the front (turned {turn:.0f} degrees from the "
                 f"front photo, at least {MIN_SIDE_TURN:.0f} needed); give a profile or three-quarter view")
         med = float(np.median(err)) if len(err) else 0.0
         if med > DISAGREEMENT:
             raise LandmarkError(
-                f"the photos do not agree: '{shown(v.name)}' is {med:.3f} inter-ocular distances off the head "
+                f"the photos do not agree: '{_named(v.name)}' is {med:.3f} inter-ocular distances off the head "
                 f"rebuilt from all views (at most {DISAGREEMENT}); give photos of one person with one expression, "
                 "or fix a bad point with --points")
 
@@ -463,21 +485,18 @@ def control_rows() -> np.ndarray:
     return np.r_[control_landmarks(), 478 + np.arange(len(EXTRA_POINTS))]
 
 
-def head_deformer(head, method: str = "dffd"):
-    """The bound deformer of the generic head: control offsets -> vertex offsets (V, H) as a
-    :class:`~faceanim.deform.base.LinearDeformer` over the control points of :func:`control_rows`."""
+@lru_cache(maxsize=2)
+def head_deformer(head) -> tuple:
+    """The generic head bound once for Dirichlet FFD: (the :class:`~faceanim.deform.base.LinearDeformer`
+    from the control points of :func:`control_rows` and the 27 points around the head to every
+    vertex, the number of control points). Cached per head (the binding takes about a second)."""
+    from faceanim.deform.ffd import dirichlet_ffd, enclosing_points
+
     prior, _ = prior_points(head)
     sites = prior[control_rows()]
     v = head.mesh.vertices
-    if method == "dffd":
-        from faceanim.deform.ffd import dirichlet_ffd, enclosing_points
-
-        box = enclosing_points(np.vstack([v, sites]))
-        full = dirichlet_ffd(np.vstack([sites, box]), v)
-        return full, len(sites)
-    if method == "rbf":
-        return None, len(sites)
-    raise FaceAnimError(f"unknown head fitting method '{shown(method)}'; choose dffd or rbf")
+    box = enclosing_points(np.vstack([v, sites]))
+    return dirichlet_ffd(np.vstack([sites, box]), v), len(sites)
 
 
 def fit_head(head, rec: Reconstruction, method: str = "dffd", keep_expression: bool = False) -> FittedHead:
@@ -494,7 +513,7 @@ def fit_head(head, rec: Reconstruction, method: str = "dffd", keep_expression: b
     a = fit_affine(head.landmarks(ge)[SURFACE_LANDMARKS], x[SURFACE_LANDMARKS])
     resid = x[rows] - apply_affine(a, sites_e)
     if method == "dffd":
-        deformer, n_sites = _cached_deformer(head)
+        deformer, n_sites = head_deformer(head)
         offsets = np.zeros((deformer.n_handles, 3))
         offsets[:n_sites] = resid
         warp = deformer.displacements(offsets)
@@ -533,16 +552,6 @@ def rigid_groups(head) -> list[tuple[np.ndarray, np.ndarray]]:
         d, _ = cKDTree(v[idx]).query(v[skin], distance_upper_bound=SOCKET_REACH)
         out.append((idx, skin[np.isfinite(d)]))
     return out
-
-
-_DEFORMERS: dict = {}
-
-
-def _cached_deformer(head):
-    key = id(head)
-    if key not in _DEFORMERS:
-        _DEFORMERS[key] = head_deformer(head, "dffd")
-    return _DEFORMERS[key]
 
 
 # ---------------------------------------------------------------------------------------- pipeline
@@ -601,7 +610,7 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
         raise FaceAnimError(f"unknown head fitting method '{shown(method)}'; choose dffd or rbf")
     if len(sides) > 2:
         raise FaceAnimError(f"give at most two side photos (left and right), got {len(sides)}")
-    texture_size = int(check_range(texture_size, "--texture-size", 64, 4096, integer=True))
+    texture_size = int(check_range(texture_size, "--texture-size", 64, MAX_TEXTURE_SIZE, integer=True))
     timings = {}
     t0 = time.perf_counter()
     head = generic_head()

@@ -16,7 +16,8 @@ from faceanim.cli.common import (
     report,
 )
 
-SUFFIXES = [".glb", ".obj", ".ply", ".png"]
+# a textured head: glTF and OBJ carry the texture atlas (PLY has no place for it)
+SUFFIXES = [".glb", ".obj", ".png"]
 
 
 def photo_rig_shapes(face, head=None) -> dict[str, np.ndarray]:
@@ -58,6 +59,9 @@ def _cmd_photo(args) -> None:
     if len(args.side or []) > 2:
         raise CommandError("give --side at most twice (a left and a right view)")
     check_outputs(args.output)
+    inputs = [Path(p).resolve() for p in [args.front, *(args.side or []), args.points] if p]
+    if out.resolve() in inputs:
+        raise CommandError(f"the output '{out}' is also an input; give the output its own path")
     ph = head_from_photos(args.front, args.side or [], args.points, method=args.method,
                           keep_expression=args.keep_expression, texture_size=args.texture_size)
     suffix = out.suffix.lower()
@@ -88,26 +92,33 @@ def _cmd_photo(args) -> None:
         written = save_mesh(face.mesh, out, avoid=named_paths(args))
     rec = ph.reconstruction
     errs = ", ".join(f"{Path(v.name).name} {np.median(e):.3f}" for v, e in zip(ph.views, rec.errors))
-    print(f"views: {errs} (median reprojection error, inter-ocular distances); "
-          f"{ph.timings['total']:.1f} s")
+    print(f"views: {errs} (median reprojection error, inter-ocular distances; the 3D points come from the front "
+          "photo and any profile, so the front's is near 0 by construction)")
     report(written)
 
 
 def register(sub) -> None:
     p = sub.add_parser("photo", help="a person's full head from a front photo and side photos: textured, "
-                                     "animatable (GLB with --rig: every control as a morph target)")
+                                     "animatable (GLB with --rig: every control as a morph target)",
+                       description="A whole head from photos (Lee et al. 1999): the generic head fitted to the "
+                                   "feature points of the photos, with one texture atlas. Outputs: .glb (textured; "
+                                   "--rig adds every control as a morph target), .obj (with .mtl and "
+                                   "OUT.texture.png beside it), .png (the head from the front, at 40 and 90 degrees).")
     p.add_argument("--front", required=True, metavar="IMAGE", help="a frontal photo (JPEG or PNG)")
     p.add_argument("--side", action="append", metavar="IMAGE",
-                   help="a profile or three-quarter photo; give it twice for left and right")
+                   help="a profile or three-quarter photo; give it twice for the left and the right side")
     p.add_argument("--points", metavar="JSON",
-                   help='corrections: {"front": {"9.3": [x, y]}, "side": {"mp:4": [x, y]}} in pixels')
+                   help='corrections of detected points, in pixels (x right, y down): {"front": {"9.3": [x, y]}, '
+                        '"side": {"mp:4": [x, y], "head_top": [x, y]}, "side2": {...}}; points are named by MPEG-4 '
+                        "FDP (9.3 the nose tip), by MediaPipe landmark as mp:N, or head_top / head_back")
     p.add_argument("--method", default="dffd", choices=["dffd", "rbf"],
                    help="head modification: Dirichlet free-form deformation (the paper) or the thin-plate spline")
     p.add_argument("--keep-expression", action="store_true",
                    help="keep the photo's expression in the rest pose (default: fitted and taken off)")
-    p.add_argument("--texture-size", type=int, default=1024, help="texture atlas pixels per side (64..4096)")
+    p.add_argument("--texture-size", type=int, default=1024,
+                   help="texture atlas pixels per side (64..2048; a multiple of 16 keeps the back seam exact)")
     p.add_argument("--rig", action="store_true",
                    help="GLB: every control as a morph target (AUs, emotions, visemes, FAP expressions, ARKit)")
     add_output(p, SUFFIXES)
-    p.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="PNG pixels per view (16..4096)")
+    p.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="PNG pixels per view (an even number, 16..4096)")
     p.set_defaults(func=_cmd_photo)

@@ -59,6 +59,20 @@ def face_frame(lm478: np.ndarray) -> FaceFrame:
     return FaceFrame(p[NOSE_TIP].copy(), np.stack([x, y, z]), iod, mouth)
 
 
+def similarity(src: np.ndarray, dst: np.ndarray, scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+    """Least-squares ``dst ~ s * R @ src + t`` in any dimension (Umeyama 1991; Kabsch with
+    ``scale=False``, s = 1): returns (s, R, t), R a proper rotation."""
+    a, b = np.asarray(src, dtype=np.float64), np.asarray(dst, dtype=np.float64)
+    ms, md = a.mean(0), b.mean(0)
+    a, b = a - ms, b - md
+    u, sv, vt = np.linalg.svd(b.T @ a)
+    fix = np.ones(a.shape[1])
+    fix[-1] = np.sign(np.linalg.det(u @ vt))
+    r = (u * fix) @ vt
+    s = float((sv * fix).sum() / max((a ** 2).sum(), 1e-300)) if scale else 1.0
+    return s, r, md - s * r @ ms
+
+
 def rigid_align(moving: np.ndarray, fixed: np.ndarray, keep: float = 0.5,
                 iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """Rotation R and translation t that best map ``moving`` onto ``fixed`` (Kabsch), robustly:
@@ -67,11 +81,7 @@ def rigid_align(moving: np.ndarray, fixed: np.ndarray, keep: float = 0.5,
     a, b = np.asarray(moving, dtype=np.float64), np.asarray(fixed, dtype=np.float64)
     sel = np.arange(len(a))
     for it in range(iterations + 1):
-        ca, cb = a[sel].mean(0), b[sel].mean(0)
-        u, _, vt = np.linalg.svd((a[sel] - ca).T @ (b[sel] - cb))
-        d = np.sign(np.linalg.det(vt.T @ u.T))
-        r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-        t = cb - r @ ca
+        _, r, t = similarity(a[sel], b[sel], scale=False)
         if it == iterations or len(a) < 8:
             break
         res = np.linalg.norm(a @ r.T + t - b, axis=1)
