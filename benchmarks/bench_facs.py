@@ -1,4 +1,4 @@
-"""Action-unit rig: binding, compiling and posing cost and memory on the 30k-vertex default face.
+"""Action-unit rig: binding, compiling and posing cost and memory on the default head (24,591 vertices).
 
     .venv/bin/python benchmarks/bench_facs.py [--blas-threads N]
 
@@ -6,7 +6,7 @@
    cold), surface (one sparse LU of the KKT system, SuperLU) and the thesis' TPS, each with BLAS
    limited to one thread (threadpoolctl) and with the run's BLAS threads, in the same run and
    called in turn. The surface bind limits BLAS to one thread around SuperLU itself; its
-   "run's threads" row removes that limit for the measurement (``surface.threadpool_limits``
+   "run's threads" row removes that limit for the measurement (``surface.one_blas_thread``
    replaced by a no-op), so the effect of the limit is what the two rows differ by. The TPS rows
    put the limit around the whole bind.
 2. Compiling every AU and emotion to blendshapes, then posing from AU weights: one frame and
@@ -53,12 +53,12 @@ METHODS = ("surface", "tps")
 @contextlib.contextmanager
 def superlu_threads_unlimited():
     """Remove bind_surface's own one-thread limit around SuperLU for the duration."""
-    original = surface.threadpool_limits
-    surface.threadpool_limits = lambda **_: contextlib.nullcontext()
+    original = surface.one_blas_thread
+    surface.one_blas_thread = contextlib.nullcontext
     try:
         yield
     finally:
-        surface.threadpool_limits = original
+        surface.one_blas_thread = original
 
 
 class SpluSpy:

@@ -3,9 +3,10 @@ points, and the bound operator's frames, against the project's thin-plate spline
 
     .venv/bin/python benchmarks/bench_ffd.py [--blas-threads N]          (about a minute on 2 cores)
 
-Mesh: 25,000 vertices of the 30k-vertex default face (its 478 landmark vertices and a fixed
-random subset of the others; metres). Control points: the 478 landmarks, 45 more vertices spread
-by farthest-point sampling and the paper's 27 enclosing points (``enclosing_points``): 550 sites,
+Mesh: the whole default head (24,591 vertices with its eyeballs, teeth, gums and tongue;
+metres). Control points: the head's vertices nearest its 478 landmarks (the landmarks lie on
+triangles; a vertex two landmarks share counts once), more vertices spread by farthest-point
+sampling up to 523, and the paper's 27 enclosing points (``enclosing_points``): 550 sites,
 the paper's use (feature points on the head plus 27 around it) with several times MPEG-4's 84
 FDPs. Offsets: random, 1 mm.
 
@@ -18,7 +19,7 @@ FDPs. Offsets: random, 1 mm.
    Also: operator memory, nonzeros per row, and how exactly each reproduces an affine motion of
    all control points (both should, to rounding).
 2. Bind time over the number of control points (80, 550 and 2,000 surface points + the 27), for
-   the same 25,000 vertices, both methods.
+   the same 24,591 vertices, both methods.
 
 Compare the ratio columns; wall-clock times depend on the machine's load and are never asserted.
 """
@@ -43,11 +44,9 @@ from _timing import (
 
 from faceanim.deform.ffd import DirichletFFD, dirichlet_ffd, enclosing_points
 from faceanim.deform.rbf import bind_rbf
-from faceanim.face.default import default_face
+from faceanim.face.default import default_face, default_landmarks
 
-N_VERTICES = 25_000
 N_FRAMES = 100
-LANDMARKS = 478  # the default face's first vertices are its MediaPipe landmarks
 TPS = "thin_plate_spline"
 BIND, WARM1, WARMN = "bind (cold)", "1 frame, warm", f"{N_FRAMES} frames, warm"
 BASE, FFD = "bind_rbf thin-plate spline (dense W)", "dirichlet_ffd (sparse Sibson W)"
@@ -64,10 +63,18 @@ def farthest(points: np.ndarray, chosen: np.ndarray, n: int) -> np.ndarray:
     return np.array(out, dtype=np.int64)
 
 
-def sites_for(verts: np.ndarray, n_surface: int) -> np.ndarray:
-    """``n_surface`` control points on the face (landmarks first, then farthest-point samples)
-    and the 27 enclosing points."""
-    base = np.arange(min(LANDMARKS, n_surface))
+def landmark_vertices(mesh) -> np.ndarray:
+    """The vertex nearest each landmark (the corner of its triangle with the largest barycentric
+    weight), each vertex once, in landmark order."""
+    lm = default_landmarks()
+    corner = mesh.faces[lm.triangles, np.argmax(lm.barycentric, axis=1)]
+    return np.array(list(dict.fromkeys(corner.tolist())), dtype=np.int64)
+
+
+def sites_for(verts: np.ndarray, n_surface: int, landmarks: np.ndarray) -> np.ndarray:
+    """``n_surface`` control points on the face (landmark vertices first, then farthest-point
+    samples) and the 27 enclosing points."""
+    base = landmarks[:n_surface]
     more = farthest(verts, base, n_surface - base.size) if n_surface > base.size else np.zeros(0, np.int64)
     return np.vstack([verts[np.r_[base, more]], enclosing_points(verts)])
 
@@ -86,11 +93,9 @@ def main() -> None:
         clock = Stopwatch()
         face = default_face()
         rng = np.random.default_rng(0)
-        pick = np.sort(np.r_[np.arange(LANDMARKS),
-                             rng.choice(np.arange(LANDMARKS, face.n_vertices), N_VERTICES - LANDMARKS,
-                                        replace=False)])
-        verts = face.vertices[pick]
-        sites = sites_for(face.vertices, 523)
+        verts = face.vertices
+        marks = landmark_vertices(face)
+        sites = sites_for(face.vertices, 523, marks)
         h = len(sites)
         one = rng.normal(scale=1e-3, size=(h, 3))
         frames = rng.normal(scale=1e-3, size=(N_FRAMES, h, 3))
@@ -119,13 +124,15 @@ def main() -> None:
                 Row(WARM1, FFD, warm[FFD]),
                 Row(WARMN, BASE, batch[BASE], N_FRAMES, True, note="(F, V, 3)"),
                 Row(WARMN, FFD, batch[FFD], N_FRAMES, note="(F, V, 3)")]
-        print(f"## default face: {N_VERTICES} of its {face.n_vertices} vertices, {h} control points "
-              f"({h - 27} on the face + 27 enclosing), {system.n_tetrahedra} Delaunay tetrahedra\n")
+        print(f"## default head: {len(verts)} vertices, {h} control points ({len(marks)} landmark vertices + "
+              f"{h - 27 - len(marks)} spread = {h - 27} on the head + 27 enclosing), "
+              f"{system.n_tetrahedra} Delaunay tetrahedra\n")
         speed_table(rows, notes=[
             (f"Sibson coordinates: {nnz:.1f} nonzeros per row on average (natural neighbours), "
             f"max {np.diff(ffd.weights.indptr).max()}; the TPS weights are dense ({h} per row)"),
-            (f"affine motion of all control points, max |moved - affine image| (m; the face is 0.16 m tall): "
-            f"TPS {affine_error(base, sites, verts):.1e}, DFFD {affine_error(ffd, sites, verts):.1e}"),
+            (f"affine motion of all control points, max |moved - affine image| (m; the head is "
+            f"{np.ptp(verts[:, 1]):.2f} m tall): TPS {affine_error(base, sites, verts):.1e}, "
+            f"DFFD {affine_error(ffd, sites, verts):.1e}"),
             (f"partition of unity, max |row sum - 1|: DFFD "
             f"{np.abs(np.asarray(ffd.weights.sum(axis=1)).ravel() - 1).max():.1e}")])
         table([[BASE, fmt_bytes(base.nbytes()), fmt_bytes(peak_base)],
@@ -138,14 +145,14 @@ def main() -> None:
         # section 2: bind time over the number of control points
         out = []
         for n in (80, 523, 2000):
-            s = sites_for(face.vertices, n)
+            s = sites_for(face.vertices, n, marks)
             times = interleaved({BASE: lambda s=s: bind_rbf(verts, s, TPS, smoothing=0.0),
                                  FFD: lambda s=s: dirichlet_ffd(s, verts)}, repeat=2, warmup=0)
             d = dirichlet_ffd(s, verts)
             out.append([f"{len(s)}", fmt_time(times[BASE]), fmt_time(times[FFD]),
                         f"{times[BASE] / times[FFD]:.2f}x", f"{d.weights.nnz / d.n_vertices:.1f}"])
         table(out, ["control points", "TPS bind", "DFFD bind", "TPS / DFFD", "DFFD nonzeros per row"],
-              title=f"## bind time over the number of control points ({N_VERTICES} vertices; best of 2, interleaved)")
+              title=f"## bind time over the number of control points ({len(verts)} vertices; best of 2, interleaved)")
         clock.lap("scaling")
         print(clock.line())
 

@@ -1,4 +1,4 @@
-"""MPEG-4 playback speed and memory on the 30k-vertex default face.
+"""MPEG-4 playback speed and memory on the default head (24,591 vertices).
 
     .venv/bin/python benchmarks/bench_mpeg4.py [../shared/data/speech-librivox] [--blas-threads N]
 
@@ -68,7 +68,7 @@ class DenseFapPlayer:
         self.d = np.ascontiguousarray(w.reshape(v, c, 3).transpose(0, 2, 1).reshape(3 * v, c))
         self.rest = rig.mesh.vertices
         self.limits = rig.limits
-        self.parts = [(p, [rig.index(n) for n in p.controls], p.weights[:, None],
+        self.parts = [(p, [rig.index(n) for n in p.controls], p.share[:, None],
                        p.rows.size == v and np.array_equal(p.rows, np.arange(v))) for p in rig.rigid_parts]
 
     def nbytes(self) -> int:
@@ -80,7 +80,7 @@ class DenseFapPlayer:
 
     def frame(self, c):
         """Positions (V, 3) for one frame of 68 FAP values."""
-        c = np.clip(c, -self.limits, self.limits)
+        c = np.clip(c, self.limits[0], self.limits[1])
         out = (self.rest.reshape(-1) + self.d @ c).reshape(-1, 3)
         for part, cols, w, _ in self.parts:
             if not np.any(c[cols]):
@@ -96,7 +96,7 @@ class DenseFapPlayer:
 
     def clip(self, curves):
         """Positions (F, V, 3) for (F, 68) FAP values."""
-        c = np.clip(curves, -self.limits, self.limits)
+        c = np.clip(curves, self.limits[0], self.limits[1])
         out = (c @ self.d.T).reshape(len(c), -1, 3)
         out += self.rest
         for part, cols, w, whole in self.parts:
@@ -115,7 +115,7 @@ class DenseFapPlayer:
 
 
 def rig_bytes(rig: FapRig) -> int:
-    return rig.deformer.nbytes() + sum(size_of(p.rows, p.weights) for p in rig.rigid_parts)
+    return rig.deformer.nbytes() + sum(size_of(p.rows, p.share) for p in rig.rigid_parts)
 
 
 def main() -> None:

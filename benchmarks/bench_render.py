@@ -1,5 +1,5 @@
 """Offscreen rendering speed: moderngl (EGL, Mesa llvmpipe) against the VTK/pyvista renderer it
-replaced, on the 30k-vertex textured default face, in the same run.
+replaced, on the textured default head (24,591 vertices, 1024 x 1024 texture), in the same run.
 
     .venv/bin/python benchmarks/bench_render.py [--frames 60] [--no-vtk]
 

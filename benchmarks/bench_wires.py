@@ -1,4 +1,4 @@
-"""Wire deformation speed and memory on the 30k-vertex default face, and extraction time.
+"""Wire deformation speed and memory on the default head (24,591 vertices), and extraction time.
 
     .venv/bin/python benchmarks/bench_wires.py [../shared/data/facewarehouse-tester1] [--blas-threads N]
 
