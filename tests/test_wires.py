@@ -223,3 +223,19 @@ def test_real_templates_rebuild(tmp_path):
     err = np.linalg.norm((t.rebuild(base, lm478=lm) - template.vertices)[face]) / np.linalg.norm(
         (template.vertices - base.vertices)[face])
     assert err < 0.4  # measured 0.29; no motion is 1.0
+
+
+def test_wires_move_the_skin_not_the_eyeballs_or_teeth():
+    """On a head with eyeballs, teeth, gums and tongue as shells, wires bound with the face's
+    landmarks move only the skin (each shell is rigid or driven by a rigid part elsewhere)."""
+    from faceanim.face.default import default_parts
+    from faceanim.face.face import Face
+    from faceanim.rig.wires import default_wires
+
+    face = Face.default()
+    bound = default_wires(face.landmarks).influence(face.mesh, face.landmarks)
+    moving = bound.deformer().moving_vertices
+    parts = default_parts()
+    inner = np.concatenate([parts[k] for k in ("teeth", "gums_tongue", "eyeball_L", "eyeball_R")])
+    assert not np.isin(inner, moving).any()
+    assert np.isin(moving, parts["skin"]).all() and len(moving) > 5000

@@ -41,8 +41,8 @@ def photo_rig_shapes(face, head=None) -> dict[str, np.ndarray]:
     for number, spec in sorted(viseme_table()["visemes"].items(), key=lambda kv: int(kv[0])):
         if spec["faps"]:
             shapes[f"viseme_{int(number):02d}"] = pose(fap_set(spec["faps"]))
-    for name in ("joy", "sadness", "anger", "fear", "disgust", "surprise"):
-        shapes[f"fap_{name}"] = pose(expression_faps(name))
+    for spec in viseme_table()["expressions"].values():  # the six MPEG-4 expressions
+        shapes[f"fap_{spec['name']}"] = pose(expression_faps(spec["name"]))
     if head is not None:
         shapes.update(head)
     return shapes

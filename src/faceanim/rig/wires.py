@@ -90,27 +90,30 @@ class WireSet:
         return [w.name for w in self.wires]
 
     def influence(self, mesh, lm478=None) -> WireInfluence:
-        """Bind to a base face. Wires with a side keep to it when the face's landmarks are given
-        (the paper's wires are not limited: without landmarks they reach across the slit)."""
+        """Bind to a base face. With the face's landmarks, the wires move its skin only (eyeballs,
+        teeth, gums and tongue modelled as shells of the mesh stay still) and wires with a side
+        keep to it (the paper's wires are not limited: without landmarks they reach everything
+        in range, across the slit)."""
         v = mesh.vertices if isinstance(mesh, Mesh) else np.asarray(mesh)
         masks = None
-        if lm478 is not None and isinstance(mesh, Mesh) and any(self.sides):
-            from faceanim.face.regions import slit_sides
+        if lm478 is not None and isinstance(mesh, Mesh):
+            from faceanim.face.regions import skin, slit_sides
 
-            lower = slit_sides(mesh, lm478)
+            on_skin = skin(mesh, lm478).astype(float)
+            lower = slit_sides(mesh, lm478) if any(self.sides) else None
             frame = face_frame(lm478)
             x = frame.to_local(v)[:, 0]
             masks = []
             for side in self.sides:
                 if not side:
-                    masks.append(None)
+                    masks.append(on_skin)
                     continue
                 # the side matters between the slit's corners; beyond them both wires act, faded
                 # in over a fifth of the slit's width, so the skin past the corners has no seam
                 corner_x = frame.to_local(np.asarray(lm478)[list(SLITS[side[0]]["corners"])])[:, 0]
                 beyond = past_corners(x, corner_x, 1.0, 0.4)
                 own = lower[side[0]] == (side[1] == "lower")
-                masks.append(np.where(own, 1.0, beyond))
+                masks.append(np.where(own, 1.0, beyond) * on_skin)
         return wire_influence(v, self.wires, self.k, masks)
 
 
