@@ -394,3 +394,21 @@ def test_a_saved_photo_head_loads_with_its_landmarks_not_detected(tmp_path, monk
     np.testing.assert_allclose(face.landmarks, default_landmarks(mesh).positions, atol=1e-6)
     other = Mesh(mesh.vertices, mesh.faces[:-1])  # one triangle fewer: not the generic topology
     assert generic_head().landmarks_on(other) is None
+
+
+def test_the_pipeline_gives_a_head_with_its_feature_points():
+    """head_from_photos on one real photo (the astronaut): the generic topology, texture
+    coordinates for every triangle corner, the 3D MPEG-4 feature points on the head's skin, and the
+    rebuilt nose tip where the photo shows it (front camera)."""
+    from skimage import data
+
+    ph = P.head_from_photos(("astronaut", data.astronaut()), texture_size=64)
+    g = generic_head()
+    assert ph.mesh.n_vertices == g.mesh.n_vertices and ph.mesh.face_uv.shape == g.mesh.faces.shape
+    assert ph.mesh.texture.shape == (64, 64, 3)
+    fdp = ph.feature_points()
+    assert {"9.3", "2.1", "8.3", "8.4", "4.1", "11.1"} <= set(fdp)
+    np.testing.assert_allclose(fdp["9.3"], ph.landmarks[4], atol=0.002)  # the nose tip, snapped to the skin
+    cam = ph.reconstruction.cameras[0]
+    assert np.linalg.norm(cam.project(ph.fitted.expressed[g.mesh.faces[g.landmark_triangles[4]]]).mean(0)
+                          - ph.views[0].points[4]) < 3.0  # pixels, in a 512 px photo

@@ -25,8 +25,10 @@ The paper's cloning half, step by step:
    smiles. The generic head's own blendshapes (jaw open, smile, lip raise/lower, stretch, pucker,
    funnel) are fitted to the photo's mouth first; the texture is taken on the head *with* that
    expression (lips sample lips, not teeth), and the head is returned *without* it.
-5. **Seamless texture** (2.2): :mod:`faceanim.build.texture` (views resampled into one atlas,
-   split along feature lines, mirrored for an unseen side, blended with a Laplacian pyramid).
+5. **Seamless texture** (2.2): :mod:`faceanim.build.texture` (views resampled into one atlas
+   through the fitted head, split where the photos' obliqueness crosses (the paper's feature
+   lines run through brow, ear and jaw), mirrored for an unseen side, blended with a Laplacian
+   pyramid).
 """
 
 from __future__ import annotations
@@ -601,6 +603,7 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
     """
     import time
 
+    from faceanim.build.texture import BakeView, atlas_uv, bake_texture
     from faceanim.face.generic_head import generic_head
     from faceanim.face.mesh import Mesh
     from faceanim.io.files import read_json
@@ -627,8 +630,6 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
     t = time.perf_counter()
     fitted = fit_head(head, rec, method, keep_expression)
     timings[f"head modification ({method})"] = time.perf_counter() - t
-    from faceanim.build.texture import BakeView, atlas_uv, bake_texture
-
     t = time.perf_counter()
     faces = head.mesh.faces
     uv, face_uv = atlas_uv(fitted.vertices, faces, head.parts)

@@ -78,13 +78,6 @@ class GenericHead:
         lin = np.eye(3) if linear is None else np.asarray(linear, dtype=np.float64)
         return {f"{prefix}{n}": self.shape(n) @ lin.T for n in self.shape_names}
 
-    def part_of(self) -> np.ndarray:
-        """(V,) index into ``list(parts)`` of each vertex's part."""
-        out = np.zeros(self.mesh.n_vertices, dtype=np.int64)
-        for k, idx in enumerate(self.parts.values()):
-            out[idx] = k
-        return out
-
 
 @lru_cache(maxsize=1)
 def generic_head() -> GenericHead:
