@@ -20,34 +20,6 @@ from faceanim.cli.common import (
 SUFFIXES = [".glb", ".obj", ".png"]
 
 
-def photo_rig_shapes(face, head=None) -> dict[str, np.ndarray]:
-    """Every control faceanim has, as blendshapes of ``face``: FACS action units and the six
-    emotions (Erdogdu), MPEG-4 visemes and expressions (FAP rig), and, for a head built from the
-    generic head, its 53 ARKit-named expression shapes carried over by the fit."""
-    from faceanim.drivers.mpeg4 import expression_faps, fap_set, viseme_table
-    from faceanim.rig.mpeg4 import FapRig
-    from faceanim.rig.transfer import ExpressionTransfer, default_model
-
-    shapes = dict(ExpressionTransfer(face).rig(default_model(), sides=True).blendshape_dict())
-    fap = FapRig.build(face)
-    rest = face.mesh.vertices
-
-    def pose(values: dict[int, float]) -> np.ndarray:
-        curves = np.zeros((1, fap.n_controls))
-        for number, v in values.items():
-            curves[0, number - 1] = v
-        return fap.evaluate(curves)[0] - rest
-
-    for number, spec in sorted(viseme_table()["visemes"].items(), key=lambda kv: int(kv[0])):
-        if spec["faps"]:
-            shapes[f"viseme_{int(number):02d}"] = pose(fap_set(spec["faps"]))
-    for spec in viseme_table()["expressions"].values():  # the six MPEG-4 expressions
-        shapes[f"fap_{spec['name']}"] = pose(expression_faps(spec["name"]))
-    if head is not None:
-        shapes.update(head)
-    return shapes
-
-
 def _cmd_photo(args) -> None:
     from faceanim.build.photo import head_from_photos
     from faceanim.face.generic_head import generic_head
@@ -76,12 +48,10 @@ def _cmd_photo(args) -> None:
                 views.append(r.render())
         written = [save_png(out, np.hstack(views))]
     elif suffix == ".glb":
-        from faceanim.player import write_rig_gltf
-        from faceanim.rig.rig import Rig
+        from faceanim.player import full_rig, write_rig_gltf
 
         if args.rig:
-            shapes = photo_rig_shapes(face, generic_head().carried_shapes(ph.fitted.affine[:, :3], "arkit_"))
-            rig = Rig.from_blendshapes(face.mesh, shapes)
+            rig = full_rig(face, generic_head().carried_shapes(ph.fitted.affine[:, :3], "arkit_"))
             curves = np.zeros((2, rig.n_controls))
             written = [write_rig_gltf(rig, curves, out, fps=1.0, name="rest", names=rig.controls)]
         else:
