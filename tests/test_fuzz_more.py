@@ -142,7 +142,7 @@ def write(folder: Path, data: bytes, suffix: str) -> Path:
 # ====================================================================== wire templates and edits
 @pytest.fixture(scope="module")
 def wire_base():
-    """The 479-vertex default face, its landmarks, the default wires and a valid template on them
+    """The default face (a whole head), its landmarks, the default wires and a valid template on them
     (each wire's control points moved a little, scales not 1)."""
     from faceanim.face.default import default_face, default_landmarks
     from faceanim.rig.wires import WireTemplate, default_wires
