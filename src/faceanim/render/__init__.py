@@ -1,8 +1,8 @@
 """Offscreen rendering of faces to images and video.
 
 OpenGL through moderngl on a headless EGL context: on a machine without a display or a GPU,
-Mesa's llvmpipe rasterises on the CPU (about 8 ms per 512 x 512 frame of the 30k-vertex
-textured default face on 2 cores, against about 50 ms with the VTK renderer used before:
+Mesa's llvmpipe rasterises on the CPU (about 14 ms per 512 x 512 frame of the textured
+whole-head default face on 2 cores, against about 50 ms with the VTK renderer used before:
 benchmarks/bench_render.py). The mesh goes to the GL once; each frame uploads float32
 positions and smooth normals (one sparse product, :mod:`.normals`). Landmark detection uses the parallel
 (orthographic) front view, where a pixel maps to a ray along -z in closed form
