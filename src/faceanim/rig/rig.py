@@ -215,14 +215,19 @@ class Rig:
         if sp.issparse(matrix):
             coo = sp.coo_matrix(matrix)
             w = sp.csr_matrix((coo.data, (coo.col // 3, 3 * coo.row + coo.col % 3)), shape=(v_count, 3 * c_count))
+            moving = np.flatnonzero(np.diff(w.indptr))
+            w = w[moving]
         else:
             w = matrix.reshape(c_count, v_count, 3).transpose(1, 0, 2).reshape(v_count, 3 * c_count)
+            moving = np.flatnonzero(np.any(w != 0, axis=1))
+            w = w[moving]
+            # sparse only where the moving rows themselves are mostly zeros (the rows no control
+            # moves are dropped either way; counting them made a 61%-full AU rig sparse and slow)
             if sparse is None:
                 sparse = np.count_nonzero(w) < 0.25 * w.size
             w = sp.csr_matrix(w) if sparse else w
-        moving = np.flatnonzero(np.diff(w.indptr)) if sp.issparse(w) else np.flatnonzero(np.any(w != 0, axis=1))
         handle_names = [f"{n}.{a}" for n in names for a in "xyz"]
-        deformer = LinearDeformer(mesh.vertices, w[moving], moving, handle_names)
+        deformer = LinearDeformer(mesh.vertices, w, moving, handle_names)
         return cls(mesh, names, deformer, list(rigid_parts), limits)
 
     # ------------------------------------------------------------------ curves
