@@ -23,16 +23,12 @@ import numpy as np
 from faceanim.deform.gde import GeometryDeformationElement as GDE
 from faceanim.drivers.keyframes import expression_tour
 from faceanim.face.default import default_landmarks, default_shapes
-from faceanim.face.face import Face
+from faceanim.face.face import HEAD_MARGIN, Face
 from faceanim.limits import DEFAULT_FPS
 from faceanim.player import frames_of, write_rig_gltf
 from faceanim.render import OffscreenRenderer, save_png, write_video
 from faceanim.rig.expressions import Expression, expression_rig
 from faceanim.rig.rig import Rig
-
-
-# the demo's pictures frame the face oval with this margin: the whole head, the neck cut off
-HEAD_MARGIN = 1.9
 
 
 def demo_expressions(lm) -> list[Expression]:

@@ -22,6 +22,7 @@ SUFFIXES = [".glb", ".obj", ".png"]
 
 def _cmd_photo(args) -> None:
     from faceanim.build.photo import head_from_photos
+    from faceanim.face.face import HEAD_MARGIN
     from faceanim.face.generic_head import generic_head
     from faceanim.io.meshio import save_mesh
 
@@ -43,8 +44,8 @@ def _cmd_photo(args) -> None:
 
         views = []
         for yaw in (0.0, 40.0, 90.0):
-            with OffscreenRenderer(face.mesh, size=(args.size, args.size), yaw=yaw, pitch=3.0,
-                                   frame_vertices=face.mesh.vertices[ph.parts["skin"]]) as r:
+            view = face.view(margin=HEAD_MARGIN, yaw=yaw, pitch=3.0)
+            with OffscreenRenderer(face.mesh, size=(args.size, args.size), **view) as r:
                 views.append(r.render())
         written = [save_png(out, np.hstack(views))]
     elif suffix == ".glb":

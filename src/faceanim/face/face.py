@@ -21,6 +21,8 @@ from faceanim.face.mesh import Mesh
 # how a face is shown in PNGs and MP4s: the face oval plus 30%, seen from 10 degrees to its left and
 # 3 degrees above
 VIEW_MARGIN, VIEW_YAW, VIEW_PITCH = 1.3, 10.0, 3.0
+# the face oval with this margin frames a whole head (the neck cut off)
+HEAD_MARGIN = 1.9
 
 
 def landmarks_478(mesh: Mesh, landmarks: Landmarks) -> np.ndarray:
