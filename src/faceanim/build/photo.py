@@ -336,7 +336,7 @@ def reconstruct(views: list[PhotoView], prior: np.ndarray, normals: np.ndarray, 
     obs = [(rows[k], pix[k]) for (rows, pix), k in zip(obs, keep)]
     x = prior.copy()
     for _ in range(iterations):
-        # the prior: the generic points under the similarity (plus a depth scale) that fits x
+        # the prior: the generic points under the similarity that fits x
         s, r, t = similarity(prior, x)
         base = s * prior @ r.T + t
         # points given the cameras: per point, sum_k |P_k X + o_k - x_k|^2 + lam |X - base|^2
