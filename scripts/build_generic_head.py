@@ -75,13 +75,21 @@ def main(argv=None) -> None:
     order = np.argsort(lms.indices)
     assert (lms.indices[order] == np.arange(478)).all()
     tri, bary = lms.triangles[order].copy(), lms.barycentric[order].copy()
+    positions = lms.positions[order]
+    # the face mesh's 468 surface points lie on the skin: a ray through an open eye's lid margin
+    # can land on the eyeball behind it (then a blink would not move the lid's landmarks)
+    skin_tri = (faces < PARTS["skin"][1]).all(axis=1)
+    off_skin = np.flatnonzero(~skin_tri[tri[:468]])
+    if len(off_skin):
+        pos, _, t = mesh.closest_points(positions[off_skin], skin_tri)
+        tri[off_skin] = t
+        bary[off_skin] = mesh.barycentric(pos, t)
     # the lips are closed: detection puts the upper and lower inner-lip points on one spot, and the
     # ray lands on one lip. Attach each to its own lip: the lower lip is what jawOpen moves down.
     drop = -(obj_vertices(args.ict / "jawOpen.obj")[:KEEP] * CM - vertices)[:, 1]
     moving = drop > 0.5 * drop[faces].max()
     lower_tri = moving[faces].all(axis=1)
     upper_tri = (~moving[faces]).all(axis=1)
-    positions = lms.positions[order]
     for group, allowed in ((LOWER_INNER_LIP, lower_tri), (UPPER_INNER_LIP, upper_tri)):
         pos, _, t = mesh.closest_points(positions[list(group)], allowed)
         tri[list(group)] = t
