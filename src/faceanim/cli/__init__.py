@@ -13,7 +13,7 @@ import re
 import sys
 from pathlib import Path
 
-from faceanim.cli import facs, mesh, mpeg4, photo, wires
+from faceanim.cli import facs, mesh, mpeg4, photo, video, wires
 from faceanim.cli.common import (
     DEFAULT_SIZE,
     FPS,
@@ -76,7 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"faceanim {_version()}")
     p.add_argument("--verbose", action="store_true", help="show MediaPipe's log and Python tracebacks")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
-                           metavar="{demo,photo,landmarks,deform,render,preprocess,au,transfer,wires,say,fap,direct}")
+                           metavar="{demo,photo,track,landmarks,deform,render,preprocess,au,transfer,wires,say,fap,direct}")
 
     d = sub.add_parser("demo", help="animate the embedded default face: GLB, MP4 and PNGs", formatter_class=fmt)
     d.add_argument("--out", default="faceanim-demo", help="output folder")
@@ -85,6 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=_cmd_demo)
     photo.register(sub)
+    video.register(sub)
     for group in (mesh, facs, wires, mpeg4):
         group.register(sub)
     for action in sub.choices.values():

@@ -1,0 +1,1 @@
+"""Performance-driven animation from video (Chai, Xiao & Hodgins 2003)."""

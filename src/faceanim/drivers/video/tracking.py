@@ -1,0 +1,262 @@
+"""Video analysis (Chai, Xiao & Hodgins 2003, section 2): head pose and 15 expression control
+parameters per frame of a video of a performer.
+
+The paper tracks the head with a textured cylinder and 19 features with affine optical flow,
+both initialised by hand. We track the face with MediaPipe's face mesh (478 landmarks with
+depth, from the pinned wheel; user-independent, no clicks), and then do what the paper does
+with its tracks:
+
+- **Head pose (6 DOF)**: a similarity fit (Umeyama) of the frame's 3D landmarks to the generic
+  head's, on the landmarks no expression moves (forehead, nose bridge, temples), gives the
+  rotation (yaw, pitch, roll in degrees: yaw positive when the head turns to its own left, pitch
+  when it nods down, roll when it tilts to its right, as MPEG-4's head FAPs) and the position (the
+  nose bridge in pixels, x right and y down, and the face's scale in pixels per generic-head
+  metre, which grows as the head comes nearer).
+- **Fronto-parallel features**: the 19 features of figure 3 (mouth corners, upper and lower lip,
+  two points on each brow, four on each eye, three on the nose) with the head pose taken out
+  (the paper warps the image into the fronto-parallel view; we unrotate the 3D landmarks), in
+  units of the generic head (metres).
+- **Control parameters (section 2.2)**: mouth 6 (lip distance, mouth width, mouth centre x and
+  y, tilt of the lips' line from the vertical, tilt of the corners' line from the horizontal),
+  nose 2 (nostril width, nose tip to the nostrils' line), eyes 2 (lid distances), brows 5 (tilt
+  of each brow, each brow's height over its eye, distance between the brows).
+- **Normalisation (4.1)**: against the performer's neutral frame, found automatically (the
+  frame nearest the clip's typical face, looking at the camera) or given: each parameter's change
+  from the neutral, in units of the neutral face's own mouth width, nose width, eye width or brow
+  gap (the paper scales by the neutral's parameters; a closed mouth's opening is ~0, so ratios to
+  it would explode), angles in degrees.
+
+Frames where no face is found are marked (``tracked`` False, NaN values), never invented.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from faceanim.errors import LandmarkError
+from faceanim.face.frame import similarity
+from faceanim.face.generic_head import generic_head
+
+# the 19 tracked features of the paper's figure 3, as MediaPipe landmarks (L/R: the face's own);
+# the lips' mid-points are taken on their outer line: on the inner line they meet when the mouth
+# closes, and the tilt of the segment between them is then noise
+FEATURES = {
+    "mouth_corner_R": 61, "mouth_corner_L": 291, "upper_lip": 0, "lower_lip": 17,
+    "brow_inner_R": 105, "brow_outer_R": 70, "brow_inner_L": 334, "brow_outer_L": 300,
+    "eye_outer_R": 33, "eye_inner_R": 133, "eye_upper_R": 159, "eye_lower_R": 145,
+    "eye_outer_L": 263, "eye_inner_L": 362, "eye_upper_L": 386, "eye_lower_L": 374,
+    "nose_tip": 4, "nostril_R": 98, "nostril_L": 327,
+}
+FEATURE_NAMES = tuple(FEATURES)
+# the 15 control parameters: name -> the neutral face's length a change of it is measured in
+# (4.1: the performer's own mouth, nose, eyes and brows, so that a performer with a small mouth and
+# the motion database's subject give the same numbers for the same expression), or "degrees"
+CONTROLS = {
+    "mouth_open": "mouth_width", "mouth_width": "mouth_width", "mouth_centre_x": "mouth_width",
+    "mouth_centre_y": "mouth_width", "lips_tilt": "degrees", "corners_tilt": "degrees",
+    "nose_width": "nose_width", "nose_height": "nose_width",
+    "eye_open_R": "eye_width_R", "eye_open_L": "eye_width_L",
+    "brow_tilt_R": "degrees", "brow_tilt_L": "degrees", "brow_raise_R": "eye_width_R", "brow_raise_L": "eye_width_L",
+    "brow_gap": "brow_gap",
+}
+CONTROL_NAMES = tuple(CONTROLS)
+POSE_NAMES = ("yaw", "pitch", "roll", "x", "y", "scale")
+# landmarks the head pose is fitted on: those none of the generic head's 53 expression shapes
+# moves by more than this (metres)
+RIGID_MOTION = 2e-3
+# a neutral frame looks at the camera: within this many degrees of yaw and pitch
+NEUTRAL_MAX_TURN = 15.0
+# ... and has its mouth among this fraction of the clip's most closed
+NEUTRAL_CLOSED_QUANTILE = 0.3
+
+
+@dataclass
+class Tracking:
+    """What the video analysis found, per frame (F frames).
+
+    ``tracked`` (F,) bool; ``pose`` (F, 6): yaw, pitch, roll (degrees), x, y (pixels), scale
+    (pixels per metre); ``features`` (F, 19, 2) fronto-parallel (metres, x the face's left, y
+    up); ``raw`` (F, 15) control parameters as measured; ``controls`` (F, 15) normalised against
+    frame ``neutral``. NaN where a frame was not tracked.
+    """
+
+    fps: float
+    tracked: np.ndarray
+    pose: np.ndarray
+    features: np.ndarray
+    raw: np.ndarray
+    controls: np.ndarray
+    neutral: int
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.tracked)
+
+    @property
+    def times(self) -> np.ndarray:
+        return np.arange(self.n_frames) / self.fps
+
+
+def rigid_landmarks() -> np.ndarray:
+    """The landmarks that place the head: those no expression shape of the generic head moves."""
+    head = generic_head()
+    lmat = head.landmark_matrix()
+    moved = np.stack([np.linalg.norm((lmat @ head.shape(n))[:468], axis=1) for n in head.shape_names]).max(0)
+    return np.flatnonzero(moved < RIGID_MOTION)
+
+
+def euler_degrees(r: np.ndarray) -> tuple[float, float, float]:
+    """(yaw, pitch, roll) of a head rotation ``r`` = Ry(yaw) Rx(pitch) Rz(roll) in camera
+    coordinates (x right, y up, z towards the camera): yaw turns the head to its own left, pitch
+    nods it down, roll tilts it to its right."""
+    yaw = np.degrees(np.arctan2(r[0, 2], r[2, 2]))
+    pitch = np.degrees(np.arcsin(np.clip(-r[1, 2], -1.0, 1.0)))
+    roll = np.degrees(np.arctan2(r[1, 0], r[1, 1]))
+    return float(yaw), float(pitch), float(roll)
+
+
+def _angle(v: np.ndarray, reference: np.ndarray) -> float:
+    return float(np.degrees(np.arctan2(reference[0] * v[1] - reference[1] * v[0], reference @ v)))
+
+
+def control_parameters(features: np.ndarray) -> np.ndarray:
+    """(15,) control parameters of one frame's fronto-parallel features ((19, 2), x the face's
+    left, y up), in the order of :data:`CONTROL_NAMES`."""
+    f = {n: features[k] for k, n in enumerate(FEATURE_NAMES)}
+    up, left = np.array([0.0, 1.0]), np.array([1.0, 0.0])
+    lips = f["upper_lip"] - f["lower_lip"]
+    corners = f["mouth_corner_L"] - f["mouth_corner_R"]
+    centre = (f["upper_lip"] + f["lower_lip"] + f["mouth_corner_L"] + f["mouth_corner_R"]) / 4
+    nostrils = f["nostril_L"] - f["nostril_R"]
+    mid = (f["nostril_L"] + f["nostril_R"]) / 2
+    nose_dir = nostrils / max(float(np.linalg.norm(nostrils)), 1e-12)
+    tip = f["nose_tip"] - mid
+    nose_height = abs(tip[0] * nose_dir[1] - tip[1] * nose_dir[0])  # distance to the nostrils' line
+    out = [np.linalg.norm(lips), np.linalg.norm(corners), centre[0], centre[1],
+           _angle(lips, up), _angle(corners, left),
+           np.linalg.norm(nostrils), nose_height,
+           np.linalg.norm(f["eye_upper_R"] - f["eye_lower_R"]), np.linalg.norm(f["eye_upper_L"] - f["eye_lower_L"])]
+    for side, sign in (("R", -1.0), ("L", 1.0)):  # a brow's tilt: its outer end up is positive
+        brow = f[f"brow_outer_{side}"] - f[f"brow_inner_{side}"]
+        out.append(_angle(brow * np.array([sign, 1.0]), left))
+    for side in ("R", "L"):
+        eye = (f[f"eye_upper_{side}"] + f[f"eye_lower_{side}"] + f[f"eye_inner_{side}"] + f[f"eye_outer_{side}"]) / 4
+        brow = (f[f"brow_inner_{side}"] + f[f"brow_outer_{side}"]) / 2
+        out.append(brow[1] - eye[1])
+    out.append(np.linalg.norm(f["brow_inner_L"] - f["brow_inner_R"]))
+    return np.array(out, dtype=np.float64)
+
+
+def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np.ndarray):
+    """Head pose (6,) and fronto-parallel features (19, 2) from one frame's 478 landmarks in
+    pixels with depth ((x right, y down, z away from the camera), as MediaPipe reports them
+    scaled by the image width)."""
+    q = landmarks_px * np.array([1.0, -1.0, -1.0])  # camera coordinates: y up, z towards the camera
+    s, r, t = similarity(reference[rigid], q[rigid])
+    yaw, pitch, roll = euler_degrees(r)
+    frontal = ((q - t) @ r) / s  # back into the generic head's frame
+    idx = [FEATURES[n] for n in FEATURE_NAMES]
+    anchor = landmarks_px[168, :2]  # the nose bridge: where the head is in the picture
+    return np.array([yaw, pitch, roll, anchor[0], anchor[1], s]), frontal[idx, :2]
+
+
+def find_neutral(raw: np.ndarray, pose: np.ndarray, tracked: np.ndarray) -> int:
+    """The neutral frame: among tracked frames looking at the camera (all tracked frames if none
+    does), those whose mouth is among the most closed (the lowest 30% of lip distance over mouth
+    width: a clip may smile or talk most of the time), and of these the one nearest the typical
+    face (per-parameter median over the clip, for the mouth over the closed-mouth frames; scaled
+    by the spread)."""
+    ok = tracked & (np.abs(pose[:, 0]) < NEUTRAL_MAX_TURN) & (np.abs(pose[:, 1]) < NEUTRAL_MAX_TURN)
+    if not ok.any():
+        ok = tracked
+    if not ok.any():
+        raise LandmarkError("no face was found in any frame; give a video where the face is lit, sharp and large")
+    rows = np.flatnonzero(ok)
+    typical = np.median(raw[rows], axis=0)  # eyes, brows, nose: as the clip usually has them
+    spread = np.median(np.abs(raw[rows] - typical), axis=0) + 1e-9
+    opening = raw[rows, 0] / np.maximum(raw[rows, 1], 1e-12)
+    rows = rows[opening <= np.quantile(opening, NEUTRAL_CLOSED_QUANTILE)]
+    mouth = [CONTROL_NAMES.index(n) for n in CONTROL_NAMES if n.startswith(("mouth", "lips", "corners"))]
+    typical[mouth] = np.median(raw[rows][:, mouth], axis=0)  # the mouth: as it is when closed
+    return int(rows[np.argmin((((raw[rows] - typical) / spread) ** 2).sum(axis=1))])
+
+
+def reference_lengths(features: np.ndarray) -> dict[str, float]:
+    """The lengths of a (neutral) face that its control parameters are measured in."""
+    f = {n: features[k] for k, n in enumerate(FEATURE_NAMES)}
+    return {"mouth_width": float(np.linalg.norm(f["mouth_corner_L"] - f["mouth_corner_R"])),
+            "nose_width": float(np.linalg.norm(f["nostril_L"] - f["nostril_R"])),
+            "eye_width_R": float(np.linalg.norm(f["eye_outer_R"] - f["eye_inner_R"])),
+            "eye_width_L": float(np.linalg.norm(f["eye_outer_L"] - f["eye_inner_L"])),
+            "brow_gap": float(np.linalg.norm(f["brow_inner_L"] - f["brow_inner_R"]))}
+
+
+def normalise(raw: np.ndarray, neutral_raw: np.ndarray, neutral_features: np.ndarray) -> np.ndarray:
+    """Section 4.1: each control parameter's change from the neutral frame, in units of the neutral
+    face's own length for it (its mouth width, nose width, eye width, brow gap; degrees for
+    angles). 0 is the neutral face; ``mouth_open`` 0.5 is a mouth opened by half its width."""
+    ref = reference_lengths(neutral_features)
+    scale = np.array([1.0 if CONTROLS[n] == "degrees" else max(ref[CONTROLS[n]], 1e-12) for n in CONTROL_NAMES])
+    return (raw - neutral_raw) / scale
+
+
+def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | None = None,
+                 progress=None) -> Tracking:
+    """Track every frame (RGB arrays) of a clip; see the module docstring."""
+    import os
+
+    from faceanim.io.files import native_stderr_quiet
+
+    os.environ.setdefault("GLOG_minloglevel", "2")
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+    try:
+        import mediapipe as mp
+    except ImportError:
+        raise LandmarkError("video tracking needs mediapipe==0.10.21 (pip install mediapipe==0.10.21)") from None
+    reference = generic_head().landmarks()
+    rigid = rigid_landmarks()
+    pose, feats, raw, tracked = [], [], [], []
+    with native_stderr_quiet(), mp.solutions.face_mesh.FaceMesh(
+            static_image_mode=False, max_num_faces=1, refine_landmarks=True,
+            min_detection_confidence=0.5, min_tracking_confidence=0.5) as fm:
+        for frame in frames:
+            h, w = frame.shape[:2]
+            result = fm.process(np.ascontiguousarray(frame))
+            if result.multi_face_landmarks:
+                lm = np.array([[p.x * w, p.y * h, p.z * w] for p in result.multi_face_landmarks[0].landmark])
+                p6, f19 = pose_and_features(lm, rigid, reference)
+                pose.append(p6)
+                feats.append(f19)
+                raw.append(control_parameters(f19))
+                tracked.append(True)
+            else:
+                pose.append(np.full(6, np.nan))
+                feats.append(np.full((19, 2), np.nan))
+                raw.append(np.full(15, np.nan))
+                tracked.append(False)
+            if progress is not None:
+                progress.update(1)
+    if not tracked:
+        raise LandmarkError("the video has no frames; give a video with at least one frame")
+    pose, feats, raw, tracked = np.array(pose), np.array(feats), np.array(raw), np.array(tracked)
+    if neutral_frame is None:
+        neutral = find_neutral(raw, pose, tracked)
+    else:
+        neutral = int(neutral_frame)
+        if not 0 <= neutral < len(tracked):
+            raise LandmarkError(f"--neutral-frame {neutral} is outside the video's {len(tracked)} frames (0..{len(tracked) - 1})")
+        if not tracked[neutral]:
+            raise LandmarkError(f"no face was found in frame {neutral}; give a frame where the face is seen "
+                                "as --neutral-frame")
+    return Tracking(float(fps), tracked, pose, feats, raw, normalise(raw, raw[neutral], feats[neutral]), neutral)
+
+
+def track_video(path, neutral_frame: int | None = None, progress=None) -> Tracking:
+    """Track a video file (see :func:`track_frames`)."""
+    from faceanim.io.video import video_frames, video_info
+
+    info = video_info(path)
+    return track_frames(video_frames(info), info.fps, neutral_frame, progress)

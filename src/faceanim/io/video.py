@@ -1,0 +1,108 @@
+"""Reading video files: frames as RGB arrays, with the clip's frame rate and size checked first.
+
+ffmpeg (the binary inside ``imageio-ffmpeg``) decodes any common container and codec. A file
+that is missing, empty, not a video, truncated before its first frame, or too large to be worth
+decoding gets one :class:`~faceanim.errors.InputFileError` line; ffmpeg's own output is never
+shown (it can echo the file's content).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from faceanim.errors import InputFileError, shown
+from faceanim.limits import MAX_FPS, MAX_FRAMES, MAX_IMAGE_SIZE
+
+PATH_SHOWN = 80
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """A video file's frame rate, frame size (width, height, as decoded: square pixels) and
+    duration in seconds (0 when the container does not say)."""
+
+    path: Path
+    fps: float
+    size: tuple[int, int]
+    duration: float
+
+    @property
+    def frames_expected(self) -> int:
+        """The number of frames the container announces (an estimate: fps x duration)."""
+        return round(self.fps * self.duration)
+
+
+def _name(path) -> str:
+    return shown(path, PATH_SHOWN, tail=True)
+
+
+def _reader(path: Path):
+    import imageio_ffmpeg
+
+    from faceanim.io.files import native_stderr_quiet
+
+    with native_stderr_quiet():
+        gen = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24")
+        try:
+            meta = next(gen)
+        except (RuntimeError, OSError, StopIteration, ValueError):
+            gen.close()
+            raise InputFileError(f"video '{_name(path)}' is not a readable video (corrupt, empty or not a "
+                                 "video); give an MP4, MOV, MKV, AVI or WebM file") from None
+    return gen, meta
+
+
+def video_info(path: str | os.PathLike) -> VideoInfo:
+    """Check a video file and read its frame rate, size and duration (no frame is decoded)."""
+    p = Path(path)
+    if str(path) == "":
+        raise InputFileError("video: the path is empty; give a video file")
+    if not p.exists():
+        raise InputFileError(f"video '{_name(p)}' does not exist; check the path")
+    if p.is_dir():
+        raise InputFileError(f"video '{_name(p)}' is a folder; give a video file")
+    if not p.is_file():
+        raise InputFileError(f"video '{_name(p)}' is not a regular file; give a video file")
+    if p.stat().st_size == 0:
+        raise InputFileError(f"video '{_name(p)}' is empty; give a video file")
+    gen, meta = _reader(p)
+    gen.close()
+    fps = float(meta.get("fps") or 0.0)
+    size = tuple(int(v) for v in (meta.get("size") or (0, 0)))
+    duration = float(meta.get("duration") or 0.0)
+    if not np.isfinite(fps) or not 0 < fps <= MAX_FPS:
+        raise InputFileError(f"video '{_name(p)}' says it runs at {fps:g} frames per second; faceanim reads "
+                             f"videos of up to {MAX_FPS:g}")
+    if len(size) != 2 or min(size) < 16 or max(size) > MAX_IMAGE_SIZE:
+        raise InputFileError(f"video '{_name(p)}' has frames of {size[0]}x{size[1]} pixels; give a video of "
+                             f"16 to {MAX_IMAGE_SIZE} pixels a side")
+    if not np.isfinite(duration) or duration < 0 or fps * duration > MAX_FRAMES:
+        raise InputFileError(f"video '{_name(p)}' is {duration:g} s long ({fps * duration:.0f} frames); give at "
+                             f"most {MAX_FRAMES} frames (cut it first)")
+    return VideoInfo(p, fps, (size[0], size[1]), duration)
+
+
+def video_frames(info: VideoInfo) -> Iterator[np.ndarray]:
+    """The frames of a checked video, in order, as (H, W, 3) uint8 arrays. Stops after
+    ``MAX_FRAMES``; a file truncated after its first frame simply ends early."""
+    gen, _ = _reader(info.path)
+    w, h = info.size
+    n = 0
+    try:
+        for buf in gen:
+            if n >= MAX_FRAMES:
+                break
+            frame = np.frombuffer(buf, dtype=np.uint8)
+            if frame.size != w * h * 3:
+                break
+            yield frame.reshape(h, w, 3)
+            n += 1
+    except (RuntimeError, OSError):
+        return  # ffmpeg stopped on a damaged tail: the frames so far stand
+    finally:
+        gen.close()
