@@ -18,7 +18,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from faceanim.drivers.video.tracking import CONTROL_NAMES, track_video  # noqa: E402
+from faceanim.drivers.video.tracking import CONTROL_NAMES, track_video
 
 STILL_FRACTION = 0.2
 WINDOW = 5  # frames: stillness is judged over this many

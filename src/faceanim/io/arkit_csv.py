@@ -1,0 +1,186 @@
+"""Live Link Face CSV takes: Apple ARKit's 52 blendshape curves with head and eye angles.
+
+Epic's Live Link Face app (iPhone, ARKit face tracking) records one row per sample: a
+``Timecode`` (``HH:MM:SS:FF.fff``, FF.fff counting the app's 60 frames per second), a
+``BlendShapeCount`` and then named columns: the 52 ARKit blendshape weights (``EyeBlinkLeft`` ..
+``TongueOut``, usually in [0, 1]), ``HeadYaw``, ``HeadPitch``, ``HeadRoll`` and the eyes' yaw,
+pitch and roll. Columns are found by name, in any order; extra columns are ignored.
+
+:func:`read_arkit_csv` checks the file (missing columns, non-numeric or non-finite cells, time
+going backwards, absurd sizes: one line naming the line and column) and returns the take on its
+own sample times; :meth:`ArkitTake.resample` puts it on a uniform frame rate, and
+:func:`ict_name` maps ARKit names to the ICT FaceKit shape names of the generic head.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from faceanim.errors import InputFileError, shown
+from faceanim.limits import MAX_FRAMES
+
+# the 52 ARKit blendshapes, in Live Link Face's column order
+ARKIT_NAMES = (
+    "EyeBlinkLeft", "EyeLookDownLeft", "EyeLookInLeft", "EyeLookOutLeft", "EyeLookUpLeft", "EyeSquintLeft",
+    "EyeWideLeft", "EyeBlinkRight", "EyeLookDownRight", "EyeLookInRight", "EyeLookOutRight", "EyeLookUpRight",
+    "EyeSquintRight", "EyeWideRight", "JawForward", "JawRight", "JawLeft", "JawOpen", "MouthClose",
+    "MouthFunnel", "MouthPucker", "MouthRight", "MouthLeft", "MouthSmileLeft", "MouthSmileRight",
+    "MouthFrownLeft", "MouthFrownRight", "MouthDimpleLeft", "MouthDimpleRight", "MouthStretchLeft",
+    "MouthStretchRight", "MouthRollLower", "MouthRollUpper", "MouthShrugLower", "MouthShrugUpper",
+    "MouthPressLeft", "MouthPressRight", "MouthLowerDownLeft", "MouthLowerDownRight", "MouthUpperUpLeft",
+    "MouthUpperUpRight", "BrowDownLeft", "BrowDownRight", "BrowInnerUp", "BrowOuterUpLeft", "BrowOuterUpRight",
+    "CheekPuff", "CheekSquintLeft", "CheekSquintRight", "NoseSneerLeft", "NoseSneerRight", "TongueOut",
+)
+HEAD_NAMES = ("HeadYaw", "HeadPitch", "HeadRoll")
+EYE_NAMES = ("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw", "RightEyePitch", "RightEyeRoll")
+TIMECODE_RATE = 60.0  # the app's timecode frames per second
+MAX_BYTES = 512 * 2**20  # a take of this size is hours long: refuse before reading
+TIMECODE = re.compile(r"^(\d{1,2}):(\d{2}):(\d{2}):(\d{1,3}(?:\.\d+)?)$")
+PATH_SHOWN = 80
+
+
+def ict_name(arkit: str) -> tuple[str, ...]:
+    """The ICT FaceKit shape(s) an ARKit curve drives: first letter lower-cased, a side Left/Right
+    -> _L/_R (JawLeft, MouthRight... are directions: jawLeft, mouthRight); BrowInnerUp and
+    CheekPuff drive both halves; TongueOut has none (empty)."""
+    if arkit == "TongueOut":
+        return ()
+    if arkit in ("BrowInnerUp", "CheekPuff"):
+        base = arkit[0].lower() + arkit[1:]
+        return (f"{base}_L", f"{base}_R")
+    name = arkit[0].lower() + arkit[1:]
+    if name in ("jawLeft", "jawRight", "mouthLeft", "mouthRight"):  # directions, not sides
+        return (name,)
+    for side, tag in (("Left", "_L"), ("Right", "_R")):
+        if name.endswith(side):
+            return (name[: -len(side)] + tag,)
+    return (name,)
+
+
+@dataclass
+class ArkitTake:
+    """A recorded take: ``times`` (F,) seconds from the first sample, ``weights`` (F, 52) in
+    :data:`ARKIT_NAMES` order (clamped to [0, 1]), ``head`` (F, 3) yaw, pitch, roll and ``eyes``
+    (F, 6) as recorded (the app does not state the unit; radians by ARKit's convention)."""
+
+    times: np.ndarray
+    weights: np.ndarray
+    head: np.ndarray
+    eyes: np.ndarray
+    source: str = ""
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.times)
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1] - self.times[0]) if len(self.times) else 0.0
+
+    def resample(self, fps: float) -> ArkitTake:
+        """The take on a uniform grid of ``fps`` frames per second (linear interpolation; a
+        dropped sample is bridged)."""
+        n = int(np.floor(self.duration * fps + 1e-6)) + 1
+        t = np.arange(n) / fps
+
+        def lerp(a):
+            return np.stack([np.interp(t, self.times, col) for col in a.T], axis=1)
+
+        return ArkitTake(t, lerp(self.weights), lerp(self.head), lerp(self.eyes), self.source)
+
+    def ict_curves(self) -> tuple[list[str], np.ndarray]:
+        """The weights as curves of the ICT shape names: (names, (F, 53)); TongueOut is dropped."""
+        names, cols = [], []
+        for k, a in enumerate(ARKIT_NAMES):
+            for n in ict_name(a):
+                names.append(n)
+                cols.append(self.weights[:, k])
+        order = np.argsort(names)
+        return [names[i] for i in order], np.stack(cols, axis=1)[:, order]
+
+
+def _timecode(text: str, where: str) -> float:
+    m = TIMECODE.match(text.strip())
+    if not m:
+        raise InputFileError(f"{where}: timecode '{shown(text)}' is not HH:MM:SS:FF.fff")
+    h, mi, s = int(m.group(1)), int(m.group(2)), int(m.group(3))
+    frames = float(m.group(4))
+    if mi > 59 or s > 59 or frames >= TIMECODE_RATE:
+        raise InputFileError(f"{where}: timecode '{shown(text)}' is out of range")
+    return h * 3600 + mi * 60 + s + frames / TIMECODE_RATE
+
+
+def read_arkit_csv(path: str | os.PathLike) -> ArkitTake:
+    """Read a Live Link Face CSV take (see the module docstring)."""
+    p = Path(path)
+    name = shown(p, PATH_SHOWN, tail=True)
+    if not p.is_file():
+        raise InputFileError(f"ARKit take '{name}' " + ("is a folder" if p.is_dir() else "does not exist; check the path"))
+    if p.stat().st_size > MAX_BYTES:
+        raise InputFileError(f"ARKit take '{name}' is {p.stat().st_size / 2**20:.0f} MiB; give at most "
+                             f"{MAX_BYTES // 2**20} MiB (split the take)")
+    try:
+        with open(p, newline="", encoding="utf-8") as fh:
+            rows = csv.reader(fh)
+            header = next(rows, None)
+            if not header:
+                raise InputFileError(f"ARKit take '{name}' is empty; give a Live Link Face CSV")
+            header = [h.strip() for h in header]
+            need = ("Timecode", *ARKIT_NAMES, *HEAD_NAMES, *EYE_NAMES)
+            missing = [n for n in need if n not in header]
+            if missing:
+                raise InputFileError(f"ARKit take '{name}' lacks the column(s) {', '.join(missing[:4])}"
+                                     + (" ..." if len(missing) > 4 else "") + "; give a Live Link Face CSV")
+            col = {n: header.index(n) for n in need}
+            numeric = [col[n] for n in (*ARKIT_NAMES, *HEAD_NAMES, *EYE_NAMES)]
+            times, values = [], []
+            for line, row in enumerate(rows, start=2):
+                if not row or all(not c.strip() for c in row):
+                    continue
+                if len(times) >= MAX_FRAMES:
+                    raise InputFileError(f"ARKit take '{name}' has more than {MAX_FRAMES} samples; split the take")
+                where = f"ARKit take '{name}' line {line}"
+                if len(row) < len(header):
+                    raise InputFileError(f"{where}: {len(row)} cells for {len(header)} columns (a truncated row)")
+                times.append(_timecode(row[col["Timecode"]], where))
+                try:
+                    v = [float(row[i]) for i in numeric]
+                except ValueError:
+                    bad = next(header[i] for i in numeric if not _is_float(row[i]))
+                    raise InputFileError(f"{where}: column {shown(bad)} is not a number") from None
+                if not np.all(np.isfinite(v)):
+                    raise InputFileError(f"{where}: NaN or infinite value")
+                values.append(v)
+    except UnicodeDecodeError:
+        raise InputFileError(f"ARKit take '{name}' is not text (UTF-8); give a Live Link Face CSV") from None
+    except csv.Error:
+        raise InputFileError(f"ARKit take '{name}' is not a readable CSV file") from None
+    if len(times) < 2:
+        raise InputFileError(f"ARKit take '{name}' has {len(times)} sample(s); give at least 2")
+    t = np.array(times)
+    t = np.where(t < t[0] - 12 * 3600, t + 24 * 3600, t)  # a take running past midnight
+    if np.any(np.diff(t) < 0):
+        k = int(np.flatnonzero(np.diff(t) < 0)[0])
+        raise InputFileError(f"ARKit take '{name}': time goes backwards after sample {k + 1}; is it two takes?")
+    # repeated timecodes (the app writes its first sample twice): keep the first
+    keep = np.r_[True, np.diff(t) > 0]
+    v = np.array(values)[keep]
+    t = t[keep] - t[keep][0]
+    if len(t) < 2:
+        raise InputFileError(f"ARKit take '{name}' has all its samples at one time; give a recording")
+    nb = len(ARKIT_NAMES)
+    return ArkitTake(t, np.clip(v[:, :nb], 0.0, 1.0), v[:, nb:nb + 3], v[:, nb + 3:], str(p))
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
