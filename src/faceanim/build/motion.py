@@ -84,3 +84,139 @@ def play_take(head: GenericHead, names: list[str], curves: np.ndarray, markers: 
             pivot = np.array([0.0, lm[[33, 263], 1].mean(), head.mesh.vertices[head.parts["skin"], 2].mean()])
         pos = np.einsum("fij,fpj->fpi", rotation, pos - pivot) + pivot
     return pos
+
+
+# ---------------------------------------------------------------------------------------- section 3.1
+def _polar(a: np.ndarray) -> np.ndarray:
+    """The rotation nearest a 3 x 3 matrix (its polar factor, det +1)."""
+    u, _, vt = np.linalg.svd(a)
+    r = u @ vt
+    if np.linalg.det(r) < 0:
+        u[:, -1] *= -1
+        r = u @ vt
+    return r
+
+
+class Factorisation:
+    """Head pose separated from expression (section 3.1): marker frames ``X_f = R_f (sum_k
+    c_fk S_k) + T_f``. ``rotations`` (F, 3, 3), ``translations`` (F, 3), ``coefficients`` (F, L),
+    ``bases`` (L, 3, P) (the shapes of the ``basis_frames`` with their pose taken out), ``energy``
+    the fraction of the data's energy the rank 3L keeps. ``expression`` (F, P, 3) is the motion
+    with the head pose removed."""
+
+    def __init__(self, rotations, translations, coefficients, bases, basis_frames, energy):
+        self.rotations, self.translations = rotations, translations
+        self.coefficients, self.bases = coefficients, bases
+        self.basis_frames, self.energy = basis_frames, energy
+
+    @property
+    def n_bases(self) -> int:
+        return len(self.bases)
+
+    @property
+    def expression(self) -> np.ndarray:
+        return np.einsum("fk,kdp->fpd", self.coefficients, self.bases)
+
+
+def _sym_rows(qa: np.ndarray, qb: np.ndarray, iu: tuple) -> np.ndarray:
+    """Rows of the linear map N -> qa^T N qb over the upper triangle of a symmetric N (qa, qb:
+    (n, 3L) stacks of vectors)."""
+    outer = qa[:, :, None] * qb[:, None, :]  # (n, 3L, 3L)
+    sym = outer + np.transpose(outer, (0, 2, 1))
+    d = np.arange(qa.shape[1])
+    sym[:, d, d] = outer[:, d, d]
+    return sym[:, iu[0], iu[1]]
+
+
+def factorise(markers: np.ndarray, energy: float = 0.996, max_bases: int = 25,
+              rotation_frames: int = 400) -> Factorisation:
+    """Separate head pose from expression in (F, P, 3) marker positions (Chai et al. 2003, eqs.
+    1-4; Xiao, Chai & Kanade's closed form). Translation is the markers' mean; the centred data
+    ``M`` (3F x P) is cut to rank 3L by its SVD, L the fewest bases keeping ``energy`` of it
+    (at most ``max_bases``); ``M ~ Q~ B~`` is then corrected by the 3L x 3L matrix G found from
+    the **rotation constraints** (each frame's 3 x 3 blocks of ``Q~ G`` are scaled rotations:
+    ``Q~_f g_k g_k^T Q~_f^T = c_fk^2 I``, on ``rotation_frames`` frames spread over the take) and
+    the **basis constraints** (L frames chosen to span the deformations, by pivoted QR of the
+    rows of ``Q~``, are the bases: ``c_{f_i k} = delta_ik``), solved for each ``g_k g_k^T`` by
+    least squares with one shared matrix; each ``g_k`` is its rank-3 factor, turned into one
+    common frame (the first basis) by Procrustes."""
+    from scipy.linalg import qr
+
+    x = np.asarray(markers, dtype=np.float64)
+    if x.ndim != 3 or x.shape[2] != 3 or x.shape[0] < 2 or x.shape[1] < 4 or not np.all(np.isfinite(x)):
+        raise FaceAnimError(f"markers must be finite (frames >= 2, points >= 4, 3), got shape {x.shape}")
+    f_count, p_count = x.shape[:2]
+    t = x.mean(axis=1)
+    m = np.transpose(x - t[:, None], (0, 2, 1)).reshape(3 * f_count, p_count)
+    u, s, vt = np.linalg.svd(m, full_matrices=False)
+    kept = np.cumsum(s ** 2) / max(float((s ** 2).sum()), 1e-300)
+    n_l = int(min(max_bases, max(1, np.ceil((np.searchsorted(kept, energy) + 1) / 3))))
+    r3 = min(3 * n_l, len(s))
+    n_l = r3 // 3
+    r3 = 3 * n_l
+    q = u[:, :r3] * np.sqrt(s[:r3])
+    b = np.sqrt(s[:r3])[:, None] * vt[:r3]
+    qf = q.reshape(f_count, 3, r3)
+    # basis frames: the L frames whose blocks are the most independent
+    _, _, piv = qr(qf.reshape(f_count, 3 * r3).T, pivoting=True, mode="economic")
+    basis = np.sort(piv[:n_l])
+    iu = np.triu_indices(r3)
+    rows, rhs_k = [], []
+    # rotation constraints (the right side is 0 for every k)
+    pick = np.unique(np.linspace(0, f_count - 1, min(rotation_frames, f_count)).astype(int))
+    qs = qf[pick]
+    for a, c in ((0, 1), (0, 2), (1, 2)):
+        rows.append(_sym_rows(qs[:, a], qs[:, c], iu))
+    for a, c in ((0, 1), (1, 2)):
+        rows.append(_sym_rows(qs[:, a], qs[:, a], iu) - _sym_rows(qs[:, c], qs[:, c], iu))
+    n_rot = sum(len(r) for r in rows)
+    # basis constraints: Q~_{f_i} N_k Q~_{f_j}^T = I if i == j == k else 0
+    pairs = [(i, j) for i in range(n_l) for j in range(i, n_l)]
+    for i, j in pairs:
+        for a in range(3):
+            for c in range(3):
+                if i == j and c < a:
+                    continue
+                rows.append(_sym_rows(qf[basis[i], a][None], qf[basis[j], c][None], iu))
+    big = np.vstack(rows)
+    rhs = np.zeros((len(big), n_l))
+    r = n_rot
+    for i, j in pairs:
+        for a in range(3):
+            for c in range(3):
+                if i == j and c < a:
+                    continue
+                if i == j and a == c:
+                    rhs[r, i] = 1.0
+                r += 1
+    sol, *_ = np.linalg.lstsq(big, rhs, rcond=None)
+    g_cols = []
+    for k in range(n_l):
+        nk = np.zeros((r3, r3))
+        nk[iu] = sol[:, k]
+        nk = nk + nk.T - np.diag(np.diag(nk))
+        w, v = np.linalg.eigh(nk)
+        top = np.argsort(w)[::-1][:3]
+        g_cols.append(v[:, top] * np.sqrt(np.maximum(w[top], 0.0)))
+    # one frame for all k: A_fk O_k = c_fk R_f; O_1 = I, O_k from sum_f A_fk^T A_f1 (Procrustes)
+    a_fk = np.einsum("fir,krj->fkij", qf, np.stack(g_cols))  # (F, L, 3, 3)
+    o = [np.eye(3)]
+    for k in range(1, n_l):
+        h = np.einsum("fji,fjl->il", a_fk[:, k], a_fk[:, 0])
+        uu, _, vv = np.linalg.svd(h)
+        ok = uu @ vv
+        o.append(ok * np.sign(np.linalg.det(ok)))
+    g = np.concatenate([gk @ ok for gk, ok in zip(g_cols, o)], axis=1)
+    qg = np.einsum("fir,rj->fij", qf, g).reshape(f_count, 3, n_l, 3).transpose(0, 2, 1, 3)  # (F, L, 3, 3)
+    strongest = np.argmax(np.linalg.norm(qg, axis=(2, 3)), axis=1)
+    # the strongest block is c R with c of either sign: det(c R) = c^3 gives the sign
+    blocks = qg[np.arange(f_count), strongest]
+    rot = np.stack([_polar(np.sign(np.linalg.det(bk)) * bk) for bk in blocks])
+    coeff = np.einsum("fij,fkij->fk", rot, qg) / 3.0
+    bases = (np.linalg.pinv(g) @ b).reshape(n_l, 3, p_count)
+    # gauge: the first basis frame's head pose is the identity
+    ref = rot[basis[0]].copy()
+    rot = rot @ ref.T
+    bases = np.einsum("ij,kjp->kip", ref, bases)
+    return Factorisation(rot, t, coeff, bases, basis, float(kept[r3 - 1]))
+
