@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -100,7 +102,7 @@ def test_factorisation_recovers_pose_and_bases_of_synthetic_data():
         factorise(np.full((3, 5, 3), np.nan))
 
 
-TAKE = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "data" / "arkit-curves" / "alex_rom_3.csv"
+TAKE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "arkit-curves" / "alex_rom_3.csv"
 
 
 @pytest.mark.skipif(not TAKE.is_file(), reason="../shared/data/arkit-curves is not here")
