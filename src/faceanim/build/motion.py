@@ -161,7 +161,7 @@ def factorise(markers: np.ndarray, energy: float = 0.996, max_bases: int = 25,
     _, _, piv = qr(qf.reshape(f_count, 3 * r3).T, pivoting=True, mode="economic")
     basis = np.sort(piv[:n_l])
     iu = np.triu_indices(r3)
-    rows, rhs_k = [], []
+    rows = []
     # rotation constraints (the right side is 0 for every k)
     pick = np.unique(np.linspace(0, f_count - 1, min(rotation_frames, f_count)).astype(int))
     qs = qf[pick]
