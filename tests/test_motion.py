@@ -126,3 +126,38 @@ def test_factorisation_separates_real_motion_from_a_known_head_motion():
     rigid = np.stack([similarity(x[0], x[f], scale=False)[1] for f in range(len(x))])
     base = _rotation_errors(rigid, rot)
     assert np.median(err) < 1.5 and np.median(err) < np.median(base) and np.percentile(err, 95) < np.percentile(base, 95)
+
+
+@pytest.mark.skipif(not TAKE.is_file(), reason="../shared/data/arkit-curves is not here")
+def test_control_parameters_of_the_markers_follow_the_recorded_curves():
+    """The 15 control parameters read off the pose-free markers (the head turning all the while)
+    follow what the performer did: the mouth opening is explained by the recorded mouth and jaw
+    curves and not by the brows', the eye opening by the eye curves, the brow height by the brow
+    curves (R^2 of linear fits over the take)."""
+    from faceanim.build.motion import factorise, marker_controls
+    from faceanim.face.controls import CONTROL_NAMES
+    from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
+
+    head = generic_head()
+    m = marker_vertices(head)
+    take = read_arkit_csv(TAKE).resample(10.0)
+    names, curves = take.ict_curves()
+    t = take.times
+    rot = head_rotation(np.radians(20) * np.sin(t / 7), np.radians(10) * np.sin(t / 5 + 1), np.radians(8) * np.sin(t / 3))
+    x = play_take(head, names, curves, m, rot)
+    raw, z, neutral = marker_controls(factorise(x), x, head.mesh.vertices[m])
+    assert np.abs(z[neutral]).max() < 1e-12 and z.shape == (len(t), 15)
+
+    def explained(control, arkit):  # R^2 of a linear fit of the control to those curves
+        a = z[:, CONTROL_NAMES.index(control)]
+        x = np.c_[np.ones(len(a)), take.weights[:, [ARKIT_NAMES.index(n) for n in arkit]]]
+        coef, *_ = np.linalg.lstsq(x, a, rcond=None)
+        return 1 - (a - x @ coef).var() / a.var()
+
+    mouth = ["JawOpen", "MouthClose", "MouthLowerDownLeft", "MouthLowerDownRight", "MouthUpperUpLeft",
+             "MouthUpperUpRight", "MouthFunnel", "MouthPucker", "MouthRollLower", "MouthRollUpper",
+             "MouthShrugLower", "MouthShrugUpper"]
+    eye = ["EyeBlinkLeft", "EyeSquintLeft", "EyeWideLeft", "EyeLookDownLeft", "EyeLookUpLeft", "CheekSquintLeft"]
+    brow = ["BrowDownLeft", "BrowOuterUpLeft", "BrowInnerUp"]
+    for control, own, other in (("mouth_open", mouth, brow), ("eye_open_L", eye, mouth), ("brow_raise_L", brow, mouth)):
+        assert explained(control, own) > 0.8 and explained(control, own) > explained(control, other) + 0.4, control

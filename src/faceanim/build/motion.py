@@ -18,13 +18,13 @@ from __future__ import annotations
 import numpy as np
 
 from faceanim.errors import FaceAnimError
+from faceanim.face.controls import FEATURE_NAMES, FEATURES
 from faceanim.face.generic_head import GenericHead
 from faceanim.face.regions import face_region
 
 N_MARKERS = 76  # as the paper's motion capture
-# the 19 features of the video analysis (drivers.video.tracking.FEATURES), as MediaPipe landmarks:
-# copied here as data because build may not import drivers; tests check they agree
-FEATURE_LANDMARKS = (61, 291, 0, 17, 105, 70, 334, 300, 33, 133, 159, 145, 263, 362, 386, 374, 4, 98, 327)
+# the 19 features of the video analysis, as MediaPipe landmarks, in their order
+FEATURE_LANDMARKS = tuple(FEATURES[n] for n in FEATURE_NAMES)
 
 
 def marker_vertices(head: GenericHead, n: int = N_MARKERS) -> np.ndarray:
@@ -220,3 +220,30 @@ def factorise(markers: np.ndarray, energy: float = 0.996, max_bases: int = 25,
     bases = np.einsum("ij,kjp->kip", ref, bases)
     return Factorisation(rot, t, coeff, bases, basis, float(kept[r3 - 1]))
 
+
+
+def pose_free(fact: Factorisation, markers: np.ndarray) -> np.ndarray:
+    """(F, P, 3) the recorded markers with the head pose the factorisation found taken out,
+    ``R_f^T (X_f - T_f)``: every detail of the expression kept (the rank-3L model's own
+    reconstruction keeps only what its L bases span)."""
+    return np.einsum("fji,fpj->fpi", fact.rotations, np.asarray(markers, dtype=np.float64) - fact.translations[:, None])
+
+
+def marker_controls(fact: Factorisation, markers: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Section 3.1's last step: the 15 control parameters of every motion capture frame, from its
+    pose-free markers (:func:`pose_free`) seen fronto-parallel (the first 19 markers are the
+    tracked features, as :func:`marker_vertices` orders them). ``rest``: (P, 3) the markers on the
+    neutral head, which gives the face's frame (the factorisation's own frame is its first basis
+    frame's) and the neutral frame (the one nearest it in shape). Returns (raw (F, 15),
+    normalised (F, 15), the neutral frame)."""
+    from faceanim.face.controls import control_parameters, normalise
+    from faceanim.face.frame import similarity
+
+    expr = pose_free(fact, markers)
+    _, w, _ = similarity(expr.mean(axis=0), rest, scale=False)
+    aligned = expr @ w.T
+    feats = aligned[:, : len(FEATURE_NAMES), :2]
+    raw = np.stack([control_parameters(f) for f in feats])
+    centred = aligned - aligned.mean(axis=1, keepdims=True)
+    neutral = int(np.argmin(np.linalg.norm(centred - (rest - rest.mean(axis=0)), axis=(1, 2))))
+    return raw, normalise(raw, raw[neutral], feats[neutral]), neutral
