@@ -145,7 +145,7 @@ def test_control_parameters_of_the_markers_follow_the_recorded_curves():
     t = take.times
     rot = head_rotation(np.radians(20) * np.sin(t / 7), np.radians(10) * np.sin(t / 5 + 1), np.radians(8) * np.sin(t / 3))
     x = play_take(head, names, curves, m, rot)
-    raw, z, neutral = marker_controls(factorise(x), x, head.mesh.vertices[m])
+    _, z, neutral = marker_controls(factorise(x), x, head.mesh.vertices[m])
     assert np.abs(z[neutral]).max() < 1e-12 and z.shape == (len(t), 15)
 
     def explained(control, arkit):  # R^2 of a linear fit of the control to those curves
