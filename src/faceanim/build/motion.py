@@ -11,9 +11,14 @@ rest of the paper's pipeline takes like real markers.
   farthest-point sampling, 76 in all, deterministic.
 - :func:`play_take`: (F, 76, 3) marker positions of a take on the head: rest + the ICT shapes
   weighted by the curves, turned by the recorded (or a given) head rotation about the head's pivot.
+- :func:`factorise` (section 3.1): head pose separated from expression; :func:`marker_controls`:
+  the 15 control parameters of every frame; :func:`build_database` / :class:`MotionDatabase`: all
+  of it in one file (its format is in the class docstring).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -247,3 +252,133 @@ def marker_controls(fact: Factorisation, markers: np.ndarray, rest: np.ndarray) 
     centred = aligned - aligned.mean(axis=1, keepdims=True)
     neutral = int(np.argmin(np.linalg.norm(centred - (rest - rest.mean(axis=0)), axis=(1, 2))))
     return raw, normalise(raw, raw[neutral], feats[neutral]), neutral
+
+
+# ---------------------------------------------------------------------------------------- the database
+DATABASE_FORMAT = "faceanim motion database 1"
+
+
+@dataclass
+class MotionDatabase:
+    """A motion database (section 3): per frame, the markers with the head pose taken out and
+    their 15 control parameters.
+
+    File format (``.npz``, :meth:`save` / :func:`load_database`): ``format`` (the string
+    :data:`DATABASE_FORMAT`), ``fps``, ``control_names`` (15 strings: a database is refused by a
+    program that measures other controls), ``marker_vertices`` (P,) of the generic head,
+    ``rest`` (P, 3) the markers on the neutral head (metres), ``markers`` (F, P, 3) float32 pose-
+    free marker positions, ``controls`` (F, 15) normalised and ``raw`` (F, 15) measured control
+    parameters, ``neutral`` (the neutral frame), ``take_starts`` (T,) the first frame of each
+    recording, ``take_names`` (T,), ``rotation_error`` (F,) degrees between the head rotation
+    applied and the one the factorisation recovered (NaN where none was applied).
+    """
+
+    fps: float
+    control_names: tuple
+    marker_vertices: np.ndarray
+    rest: np.ndarray
+    markers: np.ndarray
+    controls: np.ndarray
+    raw: np.ndarray
+    neutral: int
+    take_starts: np.ndarray
+    take_names: tuple
+    rotation_error: np.ndarray
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.controls)
+
+    def save(self, path) -> None:
+        from faceanim.io.files import atomic_output
+
+        with atomic_output(path, "motion database") as tmp, open(tmp, "wb") as fh:
+            np.savez_compressed(
+                fh, format=np.array(DATABASE_FORMAT), fps=np.array(self.fps),
+                control_names=np.array(self.control_names), marker_vertices=self.marker_vertices,
+                rest=self.rest, markers=self.markers.astype(np.float32), controls=self.controls, raw=self.raw,
+                neutral=np.array(self.neutral), take_starts=self.take_starts, take_names=np.array(self.take_names),
+                rotation_error=self.rotation_error)
+
+
+def build_database(takes, fps: float = 30.0, head_motion: np.ndarray | None = None, head=None) -> MotionDatabase:
+    """Build a motion database from ARKit takes ``[(name, ArkitTake), ...]``: each resampled to
+    ``fps``, played on the generic head's 76 markers with its recorded head rotation, or with
+    ``head_motion`` ((N, 3) yaw, pitch, roll in degrees, looped over the frames) where given; the
+    pose separated by :func:`factorise`; the control parameters by :func:`marker_controls`."""
+    from faceanim.face.controls import CONTROL_NAMES
+    from faceanim.face.generic_head import generic_head
+
+    head = head or generic_head()
+    if not takes:
+        raise FaceAnimError("give at least one take")
+    markers = marker_vertices(head)
+    rest = head.mesh.vertices[markers]
+    frames, starts, names, rotations = [], [], [], []
+    n = 0
+    for name, take in takes:
+        r = take.resample(fps)
+        shape_names, curves = r.ict_curves()
+        angles = r.head  # the recorded head yaw, pitch, roll (radians, as ARKit reports them)
+        if head_motion is not None:
+            hm = np.radians(np.asarray(head_motion, dtype=np.float64))
+            angles = hm[(n + np.arange(r.n_samples)) % len(hm)]
+        rot = head_rotation(angles[:, 0], angles[:, 1], angles[:, 2])
+        frames.append(play_take(head, shape_names, curves, markers, rot))
+        rotations.append(rot)
+        starts.append(n)
+        names.append(str(name))
+        n += r.n_samples
+    x = np.concatenate(frames)
+    applied = np.concatenate(rotations)
+    fact = factorise(x)
+    raw, controls, neutral = marker_controls(fact, x, rest)
+    # the recovered rotations against the applied ones, after the free global rotation
+    u, _, vt = np.linalg.svd(np.einsum("fji,fjk->ik", fact.rotations, applied))
+    w = u @ vt
+    err = np.degrees(np.arccos(np.clip((np.einsum("fij,fij->f", fact.rotations @ w, applied) - 1) / 2, -1, 1)))
+    moved = np.ptp(applied.reshape(len(applied), -1), axis=0).max() > 1e-9  # was any turn applied?
+    return MotionDatabase(float(fps), tuple(CONTROL_NAMES), markers, rest, pose_free(fact, x), controls, raw, neutral,
+                          np.array(starts), tuple(names), err if moved else np.full(len(x), np.nan))
+
+
+def load_database(path) -> MotionDatabase:
+    """Read a motion database written by :meth:`MotionDatabase.save`, checked (one line per fault)."""
+    import zipfile
+    from pathlib import Path
+
+    from faceanim.errors import InputFileError, shown
+    from faceanim.face.controls import CONTROL_NAMES
+
+    p = Path(path)
+    name = shown(p, 80, tail=True)
+    if not p.is_file():
+        raise InputFileError(f"motion database '{name}' " + ("is a folder" if p.is_dir() else "does not exist; check the path"))
+    try:
+        with np.load(p, allow_pickle=False) as d:
+            data = {k: d[k] for k in d.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError):
+        raise InputFileError(f"motion database '{name}' is not a readable .npz file; build one with "
+                             "faceanim mocap build") from None
+    need = ("format", "fps", "control_names", "marker_vertices", "rest", "markers", "controls", "raw", "neutral",
+            "take_starts", "take_names", "rotation_error")
+    missing = [k for k in need if k not in data]
+    if missing or str(data.get("format", "")) != DATABASE_FORMAT:
+        raise InputFileError(f"'{name}' is not a faceanim motion database ({DATABASE_FORMAT}); build one with "
+                             "faceanim mocap build")
+    if tuple(str(c) for c in data["control_names"]) != tuple(CONTROL_NAMES):
+        raise InputFileError(f"motion database '{name}' was built for other control parameters; rebuild it with "
+                             "this faceanim (faceanim mocap build)")
+    f, p_count = data["controls"].shape[0], len(data["marker_vertices"])
+    ok = (data["controls"].shape == (f, 15) and data["raw"].shape == (f, 15)
+          and data["markers"].shape == (f, p_count, 3) and data["rest"].shape == (p_count, 3)
+          and data["rotation_error"].shape == (f,) and f >= 1 and 0 <= int(data["neutral"]) < f
+          and all(np.all(np.isfinite(data[k])) for k in ("controls", "raw", "markers", "rest"))
+          and float(data["fps"]) > 0)
+    if not ok:
+        raise InputFileError(f"motion database '{name}' is damaged (inconsistent arrays); rebuild it")
+    return MotionDatabase(float(data["fps"]), tuple(CONTROL_NAMES), data["marker_vertices"].astype(np.int64),
+                          data["rest"].astype(np.float64), data["markers"].astype(np.float64),
+                          data["controls"].astype(np.float64), data["raw"].astype(np.float64), int(data["neutral"]),
+                          data["take_starts"].astype(np.int64), tuple(str(t) for t in data["take_names"]),
+                          data["rotation_error"].astype(np.float64))

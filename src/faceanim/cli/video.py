@@ -1,4 +1,4 @@
-"""faceanim track: head pose and expression control parameters from a video (Chai et al. 2003)."""
+"""faceanim track, faceanim mocap: performance from video (Chai et al. 2003): tracking, motion databases."""
 
 from __future__ import annotations
 
@@ -68,6 +68,31 @@ def _cmd_track(args) -> None:
     report([written])
 
 
+def _cmd_mocap_build(args) -> None:
+    from faceanim.build.motion import build_database
+    from faceanim.drivers.video.tracking import track_video
+    from faceanim.io.arkit_csv import read_arkit_csv
+
+    out = Path(args.output)
+    inputs = [Path(p).resolve() for p in [*args.takes, args.head_motion] if p]
+    if out.resolve() in inputs:
+        raise CommandError(f"the output '{out}' is also an input; give the output its own path")
+    check_outputs(args.output)
+    takes = [(Path(p).stem, read_arkit_csv(p)) for p in args.takes]
+    motion = None
+    if args.head_motion:
+        tr = track_video(args.head_motion)
+        pose = tr.pose[tr.tracked, :3]
+        motion = pose - np.median(pose, axis=0)  # turns about the performer's usual pose
+    db = build_database(takes, args.fps, motion)
+    db.save(out)
+    err = db.rotation_error
+    note = (f"; head rotation recovered within {np.median(err):.2f} degrees (median), {np.percentile(err, 95):.2f} "
+            "(95th percentile) of the applied one" if np.isfinite(err).all() else "")
+    print(f"{db.n_frames} frames from {len(takes)} take(s) at {db.fps:g} fps, {len(db.marker_vertices)} markers{note}")
+    report([out])
+
+
 def register(sub) -> None:
     t = sub.add_parser("track", help="head pose (6 DOF) and the 15 expression control parameters of a video's face, "
                                      "per frame, as CSV (Chai et al. 2003)",
@@ -87,3 +112,19 @@ def register(sub) -> None:
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     add_output(t, [".csv"])
     t.set_defaults(func=_cmd_track)
+
+    m = sub.add_parser("mocap", help="motion capture databases from ARKit takes (Chai et al. 2003, section 3)")
+    msub = m.add_subparsers(dest="mocap_command", required=True, metavar="{build}")
+    b = msub.add_parser("build", help="a motion database from Live Link Face CSV takes played on the generic head",
+                        description="Play each take (ARKit's 52 curves) on the generic head (ICT FaceKit, all ARKit "
+                                    "shapes), read 76 markers, turn them by the take's head rotation (or by the head "
+                                    "motion tracked in --head-motion VIDEO), separate the pose again by the paper's "
+                                    "factorisation and store the pose-free markers with their 15 control "
+                                    "parameters (.npz; the format is in faceanim.build.motion.MotionDatabase).")
+    b.add_argument("takes", nargs="+", metavar="TAKE.csv", help="Live Link Face CSV recordings")
+    b.add_argument("--fps", type=_arg_type("--fps", 1, 240), default=30.0, help="frames per second of the database")
+    b.add_argument("--head-motion", metavar="VIDEO",
+                   help="turn the markers by the head motion tracked in this video (looped): the takes were "
+                        "recorded with a still head; the factorisation's error against it is reported")
+    add_output(b, [".npz"])
+    b.set_defaults(func=_cmd_mocap_build)
