@@ -71,8 +71,9 @@ def _version() -> str:
 def build_parser() -> argparse.ArgumentParser:
     fmt = _Help
     p = _Parser(prog="faceanim", formatter_class=fmt,
-                description="3D facial animation from the papers: rig any face mesh, animate it with FACS action "
-                            "units, MPEG-4 FAPs, wires, speech and scene scripts, export glTF/OBJ/.fap/PNG/MP4.")
+                description="3D facial animation from the papers: make a head from photos, rig any face mesh, animate "
+                            "it with FACS action units, MPEG-4 FAPs, wires, speech, scene scripts and tracked video, "
+                            "export glTF/OBJ/.fap/PNG/MP4.")
     p.add_argument("--version", action="version", version=f"faceanim {_version()}")
     p.add_argument("--verbose", action="store_true", help="show MediaPipe's log and Python tracebacks")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
