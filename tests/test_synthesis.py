@@ -87,3 +87,30 @@ def test_held_out_synthesis_on_the_real_take():
     _, nnk = tree.query(query, k=10)
     knn = np.linalg.norm(mtr[nnk].mean(axis=1) - mte, axis=2).mean()
     assert err < direct and err < knn
+
+
+def test_neighbourhood_graph_finds_the_nearest_segments_of_a_coherent_query():
+    """The graph walk from the previous query's neighbours finds (nearly) the exact K nearest
+    segments of a slowly moving query (the k-d tree as the oracle), and synthesis through it
+    matches synthesis through the k-d tree."""
+    from scipy.spatial import cKDTree
+
+    from faceanim.drivers.video.synthesis import NeighbourhoodGraph
+
+    z, m, _ = smooth_database(n=900, seed=3)
+    seg = segments(z, 5)
+    graph = NeighbourhoodGraph(seg.controls)
+    tree = cKDTree(seg.controls)
+    rng = np.random.default_rng(4)
+    query = segments(z[300:500] + 0.02 * rng.normal(size=(200, 15)), 5).controls
+    recall = []
+    for x in query:
+        got = graph.query(x, 10)
+        want = tree.query(x, k=10)[1]
+        recall.append(len(set(got.tolist()) & set(want.tolist())) / 10)
+    assert np.mean(recall) > 0.95
+    a = Synthesiser(z, m, window=5, k=10, search="graph").synthesise(z[300:400])
+    b = Synthesiser(z, m, window=5, k=10, search="kdtree").synthesise(z[300:400])
+    assert np.abs(a - b).max() < 0.05 * np.abs(m).max()
+    with pytest.raises(FaceAnimError, match="unknown search"):
+        Synthesiser(z, m, window=5, k=3, search="ball")

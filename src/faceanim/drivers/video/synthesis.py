@@ -16,12 +16,15 @@ the mapping from controls to motion is disambiguated by the frames around:
   segment to 1), over ``overlap`` frames, which sets the delay: a frame is final once the newest
   segment covering it has been seen.
 
-The K nearest segments are found with scipy's k-d tree here; the paper's neighbourhood graph is
-the next step (issue 11).
+The K nearest segments come from the paper's **neighbourhood graph** (4.4, :class:`NeighbourhoodGraph`:
+segments linked to their nearest neighbours; a query starts from the nearest of the previous
+query's neighbours and walks the graph best-first, using the temporal coherence of the control
+signal), from scipy's k-d tree, or by brute force (``search=``).
 """
 
 from __future__ import annotations
 
+import heapq
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,6 +57,70 @@ def segments(controls: np.ndarray, window: int, take_starts=(0,)) -> SegmentData
     return SegmentDatabase(window, c[idx].reshape(len(ends), -1), ends)
 
 
+class NeighbourhoodGraph:
+    """The paper's data structure (4.4): every segment linked to its ``degree`` nearest segments
+    (both ways); K-nearest queries walk it best-first from the nearest of the previous query's
+    neighbours, visiting at most ``budget`` segments, so a query costs about O(K) whatever the
+    database's size. The first query (or after :meth:`reset`) is answered exactly."""
+
+    def __init__(self, points: np.ndarray, degree: int = 12, budget: int = 4):
+        from scipy.spatial import cKDTree
+
+        self.points = np.asarray(points, dtype=np.float64)
+        n = len(self.points)
+        degree = int(min(max(degree, 1), n - 1)) if n > 1 else 0
+        self.tree = cKDTree(self.points)
+        if degree:
+            _, nn = self.tree.query(self.points, k=degree + 1)
+            pairs = np.c_[np.repeat(np.arange(n), degree), nn[:, 1:].reshape(-1)]
+            pairs = np.unique(np.sort(np.vstack([pairs, pairs[:, ::-1]]), axis=1), axis=0)
+            both = np.vstack([pairs, pairs[:, ::-1]])
+            order = np.lexsort((both[:, 1], both[:, 0]))
+            both = both[order]
+            self.starts = np.searchsorted(both[:, 0], np.arange(n + 1))
+            self.links = both[:, 1]
+        else:
+            self.starts, self.links = np.zeros(n + 1, np.int64), np.zeros(0, np.int64)
+        self.budget = int(budget)
+        self.last: np.ndarray | None = None
+        self.visited_total = 0
+
+    def reset(self) -> None:
+        self.last = None
+
+    def query(self, q: np.ndarray, k: int) -> np.ndarray:
+        """Indices of (about) the ``k`` nearest points to ``q``, nearest first."""
+        if self.last is None:
+            _, nn = self.tree.query(q, k=k)
+            self.last = np.atleast_1d(nn)
+            return self.last
+        dist = {}
+
+        def d(i):
+            if i not in dist:
+                dist[i] = float(np.sum((self.points[i] - q) ** 2))
+            return dist[i]
+
+        seeds = [int(i) for i in self.last]
+        start = min(seeds, key=d)
+        heap = [(d(start), start)]
+        seen = {start}
+        done = []
+        limit = self.budget * k
+        while heap and len(done) < limit:
+            dd, i = heapq.heappop(heap)
+            done.append((dd, i))
+            for j in self.links[self.starts[i]:self.starts[i + 1]]:
+                j = int(j)
+                if j not in seen:
+                    seen.add(j)
+                    heapq.heappush(heap, (d(j), j))
+        self.visited_total += len(dist)
+        best = sorted(done)[:k]
+        self.last = np.array([i for _, i in best], dtype=np.int64)
+        return self.last
+
+
 class Synthesiser:
     """Filtering and synthesis against one motion database (see the module docstring).
 
@@ -62,7 +129,7 @@ class Synthesiser:
     """
 
     def __init__(self, controls, markers, window: int = 20, k: int = 30, variance: float = 0.99,
-                 overlap: int = 5, take_starts=(0,)):
+                 overlap: int = 5, take_starts=(0,), search: str = "kdtree"):
         from scipy.spatial import cKDTree
 
         self.markers = np.asarray(markers, dtype=np.float64)
@@ -73,13 +140,26 @@ class Synthesiser:
             raise FaceAnimError(f"the variance kept must be in (0, 1], got {variance}")
         if not 1 <= overlap <= window:
             raise FaceAnimError(f"the overlap must be 1 to {window} frames, got {overlap}")
+        if search not in ("graph", "kdtree", "brute"):
+            raise FaceAnimError(f"unknown search '{search}'; choose graph, kdtree or brute")
         self.window, self.k, self.variance, self.overlap = int(window), int(k), float(variance), int(overlap)
+        self.search = search
         self.tree = cKDTree(self.db.controls)
+        self.graph = NeighbourhoodGraph(self.db.controls) if search == "graph" else None
+
+    def nearest(self, query: np.ndarray) -> np.ndarray:
+        """The K nearest database segments of a (W*15,) query segment."""
+        if self.search == "graph":
+            return self.graph.query(query, self.k)
+        if self.search == "kdtree":
+            return np.atleast_1d(self.tree.query(query, k=self.k)[1])
+        d = np.sum((self.db.controls - query) ** 2, axis=1)
+        nn = np.argpartition(d, self.k - 1)[: self.k]
+        return nn[np.argsort(d[nn])]
 
     def _local(self, query: np.ndarray):
         """The K nearest segments, the filtered query and the neighbours' weights."""
-        _, nn = self.tree.query(query, k=self.k)
-        nn = np.atleast_1d(nn)
+        nn = self.nearest(query)
         x = self.db.controls[nn]
         mean = x.mean(axis=0)
         _, s, vt = np.linalg.svd(x - mean, full_matrices=False)
@@ -100,6 +180,8 @@ class Synthesiser:
         if q.ndim != 2 or q.shape[1] != self.db.controls.shape[1] // self.window or not np.all(np.isfinite(q)):
             raise FaceAnimError(f"query controls must be finite (frames, {self.db.controls.shape[1] // self.window})")
         f_count, w_len = len(q), self.window
+        if self.graph is not None:
+            self.graph.reset()
         padded = np.vstack([np.repeat(q[:1], w_len - 1, axis=0), q])
         out = np.zeros((f_count,) + self.markers.shape[1:])
         weight = np.zeros(f_count)
@@ -125,6 +207,8 @@ class Synthesiser:
         segment that ends at it)."""
         q = np.asarray(controls, dtype=np.float64)
         w_len, m = self.window, q.shape[1]
+        if self.graph is not None:
+            self.graph.reset()
         padded = np.vstack([np.repeat(q[:1], w_len - 1, axis=0), q])
         out = np.empty_like(q)
         for t in range(len(q)):
