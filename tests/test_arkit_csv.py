@@ -131,3 +131,10 @@ def test_reader_takes_any_table(tmp_path, rows, with_header):
         assert "\n" not in str(exc)
     else:
         assert np.all(np.isfinite(take.weights)) and np.all(np.diff(take.times) > 0)
+
+
+def test_a_device_is_not_a_take(tmp_path):
+    with pytest.raises(InputFileError, match="not a regular file"):
+        read_arkit_csv("/dev/null")
+    with pytest.raises(InputFileError, match="a folder"):
+        read_arkit_csv(tmp_path)

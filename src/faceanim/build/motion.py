@@ -352,8 +352,11 @@ def load_database(path) -> MotionDatabase:
 
     p = Path(path)
     name = shown(p, 80, tail=True)
+    if not p.exists():
+        raise InputFileError(f"motion database '{name}' does not exist; check the path")
     if not p.is_file():
-        raise InputFileError(f"motion database '{name}' " + ("is a folder" if p.is_dir() else "does not exist; check the path"))
+        raise InputFileError(f"motion database '{name}' is " + ("a folder" if p.is_dir() else "not a regular file")
+                             + "; build one with faceanim mocap build")
     try:
         with np.load(p, allow_pickle=False) as d:
             data = {k: d[k] for k in d.files}

@@ -120,8 +120,11 @@ def read_arkit_csv(path: str | os.PathLike) -> ArkitTake:
     """Read a Live Link Face CSV take (see the module docstring)."""
     p = Path(path)
     name = shown(p, PATH_SHOWN, tail=True)
+    if not p.exists():
+        raise InputFileError(f"ARKit take '{name}' does not exist; check the path")
     if not p.is_file():
-        raise InputFileError(f"ARKit take '{name}' " + ("is a folder" if p.is_dir() else "does not exist; check the path"))
+        raise InputFileError(f"ARKit take '{name}' is " + ("a folder" if p.is_dir() else "not a regular file")
+                             + "; give a Live Link Face CSV")
     if p.stat().st_size > MAX_BYTES:
         raise InputFileError(f"ARKit take '{name}' is {p.stat().st_size / 2**20:.0f} MiB; give at most "
                              f"{MAX_BYTES // 2**20} MiB (split the take)")
