@@ -107,13 +107,9 @@ def test_factorisation_recovers_pose_and_bases_of_synthetic_data():
 TAKE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "arkit-curves" / "alex_rom_3.csv"
 
 
-@pytest.mark.skipif(not TAKE.is_file(), reason="../shared/data/arkit-curves is not here")
-def test_factorisation_separates_real_motion_from_a_known_head_motion():
-    """The real ARKit take played on the markers, turned by a known head motion (a smooth sweep of
-    yaw +-20, pitch +-10, roll +-8 degrees): the recovered rotations are within 1.5 degrees
-    (median) of the applied ones, closer than a rigid Procrustes fit of each frame to one frame."""
-    from faceanim.build.motion import factorise
-    from faceanim.face.frame import similarity
+def _turned_take():
+    """The real take at 10 fps played on the markers and turned by a known smooth head sweep (yaw
+    +-20, pitch +-10, roll +-8 degrees): (head, markers, take, rotations, marker positions)."""
     from faceanim.io.arkit_csv import read_arkit_csv
 
     head = generic_head()
@@ -122,7 +118,18 @@ def test_factorisation_separates_real_motion_from_a_known_head_motion():
     names, curves = take.ict_curves()
     t = take.times
     rot = head_rotation(np.radians(20) * np.sin(t / 7), np.radians(10) * np.sin(t / 5 + 1), np.radians(8) * np.sin(t / 3))
-    x = play_take(head, names, curves, m, rot)
+    return head, m, take, rot, play_take(head, names, curves, m, rot)
+
+
+@pytest.mark.skipif(not TAKE.is_file(), reason="../shared/data/arkit-curves is not here")
+def test_factorisation_separates_real_motion_from_a_known_head_motion():
+    """The real ARKit take played on the markers, turned by a known head motion (a smooth sweep of
+    yaw +-20, pitch +-10, roll +-8 degrees): the recovered rotations are within 1.5 degrees
+    (median) of the applied ones, closer than a rigid Procrustes fit of each frame to one frame."""
+    from faceanim.build.motion import factorise
+    from faceanim.face.frame import similarity
+
+    _, _, _, rot, x = _turned_take()
     fa = factorise(x)
     err = _rotation_errors(fa.rotations, rot)
     rigid = np.stack([similarity(x[0], x[f], scale=False)[1] for f in range(len(x))])
@@ -138,17 +145,11 @@ def test_control_parameters_of_the_markers_follow_the_recorded_curves():
     curves (R^2 of linear fits over the take)."""
     from faceanim.build.motion import factorise, marker_controls
     from faceanim.face.controls import CONTROL_NAMES
-    from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
+    from faceanim.io.arkit_csv import ARKIT_NAMES
 
-    head = generic_head()
-    m = marker_vertices(head)
-    take = read_arkit_csv(TAKE).resample(10.0)
-    names, curves = take.ict_curves()
-    t = take.times
-    rot = head_rotation(np.radians(20) * np.sin(t / 7), np.radians(10) * np.sin(t / 5 + 1), np.radians(8) * np.sin(t / 3))
-    x = play_take(head, names, curves, m, rot)
+    head, m, take, _, x = _turned_take()
     _, z, neutral = marker_controls(factorise(x), x, head.mesh.vertices[m])
-    assert np.abs(z[neutral]).max() < 1e-12 and z.shape == (len(t), 15)
+    assert np.abs(z[neutral]).max() < 1e-12 and z.shape == (take.n_samples, 15)
 
     def explained(control, arkit):  # R^2 of a linear fit of the control to those curves
         a = z[:, CONTROL_NAMES.index(control)]

@@ -345,18 +345,13 @@ def build_database(takes, fps: float = 30.0, head_motion: np.ndarray | None = No
 def load_database(path) -> MotionDatabase:
     """Read a motion database written by :meth:`MotionDatabase.save`, checked (one line per fault)."""
     import zipfile
-    from pathlib import Path
 
     from faceanim.errors import InputFileError, shown
     from faceanim.face.controls import CONTROL_NAMES
+    from faceanim.io.files import check_input_file
 
-    p = Path(path)
+    p = check_input_file(path, "motion database", "a database made by faceanim mocap build")
     name = shown(p, 80, tail=True)
-    if not p.exists():
-        raise InputFileError(f"motion database '{name}' does not exist; check the path")
-    if not p.is_file():
-        raise InputFileError(f"motion database '{name}' is " + ("a folder" if p.is_dir() else "not a regular file")
-                             + "; build one with faceanim mocap build")
     try:
         with np.load(p, allow_pickle=False) as d:
             data = {k: d[k] for k in d.files}

@@ -124,16 +124,10 @@ def read_photo(path: str | os.PathLike, what: str = "photo") -> np.ndarray:
 
     from PIL import Image, ImageOps, UnidentifiedImageError
 
-    p = Path(path)
+    from faceanim.io.files import check_input_file
+
+    p = check_input_file(path, what, "an image file (JPEG or PNG)")
     name = _named(p)
-    if str(path) == "":
-        raise InputFileError(f"{what}: the path is empty; give an image file (JPEG or PNG)")
-    if not p.exists():
-        raise InputFileError(f"{what} '{name}' does not exist; check the path")
-    if p.is_dir():
-        raise InputFileError(f"{what} '{name}' is a folder; give an image file (JPEG or PNG)")
-    if not p.is_file():
-        raise InputFileError(f"{what} '{name}' is not a regular file; give an image file (JPEG or PNG)")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # Pillow's decompression-bomb warning: checked below

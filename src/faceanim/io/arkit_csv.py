@@ -18,11 +18,11 @@ import csv
 import os
 import re
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from faceanim.errors import InputFileError, shown
+from faceanim.io.files import check_input_file
 from faceanim.limits import MAX_FRAMES
 
 # the 52 ARKit blendshapes, in Live Link Face's column order
@@ -118,13 +118,8 @@ def _timecode(text: str, where: str) -> float:
 
 def read_arkit_csv(path: str | os.PathLike) -> ArkitTake:
     """Read a Live Link Face CSV take (see the module docstring)."""
-    p = Path(path)
+    p = check_input_file(path, "ARKit take", "a Live Link Face CSV")
     name = shown(p, PATH_SHOWN, tail=True)
-    if not p.exists():
-        raise InputFileError(f"ARKit take '{name}' does not exist; check the path")
-    if not p.is_file():
-        raise InputFileError(f"ARKit take '{name}' is " + ("a folder" if p.is_dir() else "not a regular file")
-                             + "; give a Live Link Face CSV")
     if p.stat().st_size > MAX_BYTES:
         raise InputFileError(f"ARKit take '{name}' is {p.stat().st_size / 2**20:.0f} MiB; give at most "
                              f"{MAX_BYTES // 2**20} MiB (split the take)")

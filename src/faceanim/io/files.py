@@ -263,6 +263,26 @@ def atomic_output(path: str | os.PathLike, what: str = "output") -> Iterator[Pat
         _unregister(tmp)
 
 
+def check_input_file(path: str | os.PathLike, what: str, give: str) -> Path:
+    """The path of an input file that can be read: refused (one :class:`InputFileError` line, the
+    path shown by its printable end) when empty, missing, a folder or not a regular file (a device,
+    a pipe). ``what`` names the input ("front photo"), ``give`` what to give instead ("a video
+    file")."""
+    from faceanim.errors import shown
+
+    p = Path(path)
+    name = shown(p, 80, tail=True)
+    if str(path) == "":
+        raise InputFileError(f"{what}: the path is empty; give {give}")
+    if not p.exists():
+        raise InputFileError(f"{what} '{name}' does not exist; check the path")
+    if p.is_dir():
+        raise InputFileError(f"{what} '{name}' is a folder; give {give}")
+    if not p.is_file():
+        raise InputFileError(f"{what} '{name}' is not a regular file; give {give}")
+    return p
+
+
 def read_json(path: str | os.PathLike, what: str = "JSON file") -> object:
     """Read a JSON file, turning every failure into an :class:`InputFileError` naming the file."""
     path = Path(path)

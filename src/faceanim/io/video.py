@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.errors import InputFileError, shown
+from faceanim.io.files import check_input_file
 from faceanim.limits import MAX_FPS, MAX_FRAMES, MAX_IMAGE_SIZE
 
 PATH_SHOWN = 80
@@ -59,15 +60,7 @@ def _reader(path: Path):
 
 def video_info(path: str | os.PathLike) -> VideoInfo:
     """Check a video file and read its frame rate, size and duration (no frame is decoded)."""
-    p = Path(path)
-    if str(path) == "":
-        raise InputFileError("video: the path is empty; give a video file")
-    if not p.exists():
-        raise InputFileError(f"video '{_name(p)}' does not exist; check the path")
-    if p.is_dir():
-        raise InputFileError(f"video '{_name(p)}' is a folder; give a video file")
-    if not p.is_file():
-        raise InputFileError(f"video '{_name(p)}' is not a regular file; give a video file")
+    p = check_input_file(path, "video", "a video file")
     if p.stat().st_size == 0:
         raise InputFileError(f"video '{_name(p)}' is empty; give a video file")
     gen, meta = _reader(p)
