@@ -396,8 +396,10 @@ def extra_vertices(head) -> dict[str, int]:
     return {"head_top": top, "head_back": back}
 
 
+@lru_cache(maxsize=2)
 def prior_points(head) -> tuple[np.ndarray, np.ndarray]:
-    """The generic head's points (478 landmarks + extras) and their unit surface normals."""
+    """The generic head's points (478 landmarks + extras) and their unit surface normals (computed
+    once per head; read-only)."""
     from faceanim.face.mesh import vertex_normals
 
     nv = vertex_normals(head.mesh.vertices, head.mesh.faces)
@@ -407,7 +409,10 @@ def prior_points(head) -> tuple[np.ndarray, np.ndarray]:
     nl = np.einsum("lk,lkd->ld", head.landmark_barycentric, corners)
     pts = np.vstack([lm, head.mesh.vertices[[ex[n] for n in EXTRA_POINTS]]])
     nrm = np.vstack([nl, nv[[ex[n] for n in EXTRA_POINTS]]])
-    return pts, nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+    nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+    pts.setflags(write=False)
+    nrm.setflags(write=False)
+    return pts, nrm
 
 
 def fit_affine(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -536,8 +541,10 @@ def fit_head(head, rec: Reconstruction, method: str = "dffd", keep_expression: b
 SOCKET_REACH = 0.006
 
 
+@lru_cache(maxsize=2)
 def rigid_groups(head) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(part vertices, the skin vertices around them) for the eyeballs and the teeth with gums."""
+    """(part vertices, the skin vertices around them) for the eyeballs and the teeth with gums
+    (found once per head)."""
     from scipy.spatial import cKDTree
 
     v = head.mesh.vertices
