@@ -84,12 +84,13 @@ def _cmd_mocap_build(args) -> None:
         tr = track_video(args.head_motion)
         pose = tr.pose[tr.tracked, :3]
         motion = pose - np.median(pose, axis=0)  # turns about the performer's usual pose
-    db = build_database(takes, args.fps, motion)
+    db = build_database(takes, args.fps, motion, pose=args.pose)
     db.save(out)
     err = db.rotation_error
     note = (f"; head rotation recovered within {np.median(err):.2f} degrees (median), {np.percentile(err, 95):.2f} "
             "(95th percentile) of the applied one" if np.isfinite(err).all() else "")
-    print(f"{db.n_frames} frames from {len(takes)} take(s) at {db.fps:g} fps, {len(db.marker_vertices)} markers{note}")
+    print(f"{db.n_frames} frames from {len(takes)} take(s) at {db.fps:g} fps, {len(db.marker_vertices)} markers, "
+          f"{db.n_bases} deformation bases{note}")
     report([out])
 
 
@@ -118,13 +119,17 @@ def register(sub) -> None:
     b = msub.add_parser("build", help="a motion database from Live Link Face CSV takes played on the generic head",
                         description="Play each take (ARKit's 52 curves) on the generic head (ICT FaceKit, all ARKit "
                                     "shapes), read 76 markers, turn them by the take's head rotation (or by the head "
-                                    "motion tracked in --head-motion VIDEO), separate the pose again by the paper's "
-                                    "factorisation and store the pose-free markers with their 15 control "
-                                    "parameters (.npz; the format is in faceanim.build.motion.MotionDatabase).")
+                                    "motion tracked in --head-motion VIDEO), separate the pose again (--pose) and store "
+                                    "the pose-free markers with their 15 control parameters and the deformation "
+                                    "bases that retarget them (.npz; the format is in "
+                                    "faceanim.build.motion.MotionDatabase).")
     b.add_argument("takes", nargs="+", metavar="TAKE.csv", help="Live Link Face CSV recordings")
     b.add_argument("--fps", type=_arg_type("--fps", 1, 240), default=30.0, help="frames per second of the database")
     b.add_argument("--head-motion", metavar="VIDEO",
                    help="turn the markers by the head motion tracked in this video (looped): the takes were "
                         "recorded with a still head; the factorisation's error against it is reported")
+    b.add_argument("--pose", choices=("stable", "factorisation"), default="stable",
+                   help="how the head pose is taken out of the markers: rigid registration weighted towards the "
+                        "stillest markers (default, the more accurate) or the paper's rank-3L factorisation")
     add_output(b, [".npz"])
     b.set_defaults(func=_cmd_mocap_build)
