@@ -349,8 +349,12 @@ def bind_rbf(rest, handles, kernel: str = "multiquadric", smoothing: float = DEF
     return LinearDeformer(rest.astype(dtype), w.astype(dtype), rows)
 
 
-def landmark_tps(source, target, what: str = "landmarks", merge_repeated: bool = False):
+def landmark_tps(source, target, what: str = "landmarks", merge_repeated: bool = False, smoothing: float = 0.0):
     """The thesis' 3D thin-plate spline through landmark pairs (eqs. 4.11-4.19).
+
+    ``smoothing`` > 0 trades exactness for smoothness (the Tikhonov term of :class:`RadialBasis`,
+    in its normalised units): detected landmarks carry noise, which an exact spline turns into
+    local folds.
 
     Returns a callable ``f(points)`` mapping points near ``source`` to points near ``target``.
     Repeated or coplanar landmarks make the system singular: refused with a clear error, unless
@@ -372,7 +376,7 @@ def landmark_tps(source, target, what: str = "landmarks", merge_repeated: bool =
             raise LandmarkError(f"the {label} {what} are coplanar (or collinear): a 3D thin-plate spline "
                                 "needs landmarks off one plane (eyes, nose tip and mouth are not)")
     try:
-        system = RadialBasis(src, "thin_plate_spline", smoothing=0.0)
+        system = RadialBasis(src, "thin_plate_spline", smoothing=float(smoothing))
     except DeformError as exc:
         raise LandmarkError(f"{what}: {exc}") from None
     coeff = system.coefficients(dst - src)

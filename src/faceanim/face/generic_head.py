@@ -72,6 +72,10 @@ class GenericHead:
         out[rows] = delta
         return out
 
+    def sparse_shape(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """One expression blendshape as stored: (rows (n,), deltas (n, 3)) of the vertices it moves."""
+        return self._shapes[name]
+
     def carried_shapes(self, linear: np.ndarray | None = None, prefix: str = "") -> dict[str, np.ndarray]:
         """All expression shapes carried onto a head fitted from this one: each delta turned by the
         fit's linear part ``linear`` (3, 3) (the global affine of the fit; identity if None)."""
