@@ -9,8 +9,10 @@ import numpy as np
 from faceanim.cli.common import (
     CommandError,
     _arg_type,
+    add_face,
     add_output,
     check_outputs,
+    load_face,
     progress,
     report,
 )
@@ -94,6 +96,90 @@ def _cmd_mocap_build(args) -> None:
     report([out])
 
 
+def _video_sound(video: Path, folder: Path) -> Path | None:
+    """The video's sound as a WAV in ``folder`` (None if it has none or ffmpeg cannot read it)."""
+    import subprocess
+
+    import imageio_ffmpeg
+
+    wav = folder / "sound.wav"
+    r = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-nostdin", "-y", "-i", str(video), "-vn",
+                        "-ac", "1", "-ar", "44100", str(wav)], capture_output=True, check=False)
+    return wav if r.returncode == 0 and wav.is_file() and wav.stat().st_size > 1000 else None
+
+
+def _side_by_side(video_frames, face_frames, size: int):
+    """Each video frame scaled to ``size`` pixels high beside the face's render."""
+    import cv2
+
+    for img, face in zip(video_frames, face_frames):
+        h, w = img.shape[:2]
+        width = max(2, int(round(w * size / h / 2)) * 2)
+        yield np.hstack([cv2.resize(img, (width, size), interpolation=cv2.INTER_AREA), face])
+
+
+def _cmd_perform(args) -> None:
+    from faceanim.build.motion import load_database
+    from faceanim.drivers.video.tracking import track_frames
+    from faceanim.io.video import video_frames, video_info
+    from faceanim.perform import default_database, perform, performance_rig
+
+    out = Path(args.output)
+    inputs = [Path(p).resolve() for p in (args.video, args.db, args.face, args.landmarks) if p]
+    if out.resolve() in inputs:
+        raise CommandError(f"the output '{out}' is also an input; give the output its own path")
+    check_outputs(args.output)
+    if args.overlap > args.window:
+        raise CommandError(f"--overlap ({args.overlap}) cannot exceed --window ({args.window})")
+    info = video_info(args.video)
+    db = load_database(args.db) if args.db else default_database()
+    suffix = out.suffix.lower()
+    face = rig = None
+    if suffix != ".csv":
+        face = load_face(args)
+    with progress(info.frames_expected, "tracking", args.quiet) as bar:
+        tr = track_frames(video_frames(info), info.fps, args.neutral_frame, bar)
+    perf = perform(tr, db, raw=args.raw, window=args.window, k=args.k, overlap=args.overlap)
+    how = "mapped frame by frame (--raw)" if args.raw else (
+        f"filtered and synthesised from {db.n_frames} database frames (W={min(args.window, db.n_frames)}, "
+        f"K={args.k}, delay {args.overlap - 1} frames)")
+    if suffix == ".csv":
+        from faceanim.io.arkit_csv import write_arkit_csv
+        from faceanim.perform import arkit_curves
+
+        written = write_arkit_csv(out, arkit_curves(perf, db), perf.fps, np.radians(perf.pose[:, :3]))
+    else:
+        from faceanim.perform import head_pivot
+
+        rig = performance_rig(face, db)
+        pivot = head_pivot(face)
+        if suffix == ".mp4":
+            import tempfile
+
+            from faceanim.perform import frames_of
+            from faceanim.render.gl import OffscreenRenderer
+            from faceanim.render.video import write_video
+
+            size = args.size
+            with tempfile.TemporaryDirectory(dir=out.parent.resolve()) as tmp, \
+                    OffscreenRenderer(face.mesh, size=(size, size), **face.view(yaw=0.0, pitch=0.0)) as r, \
+                    progress(perf.n_frames, "rendering", args.quiet) as bar:
+                sound = _video_sound(Path(args.video), Path(tmp))
+                faces = (r.render(v) for v in frames_of(perf, rig, pivot))
+                written = write_video(out, _side_by_side(video_frames(info), faces, size), fps=perf.fps,
+                                      audio=sound, progress=bar)
+        else:
+            from faceanim.io.gltf import write_gltf
+
+            times = np.arange(perf.n_frames) / perf.fps
+            written = write_gltf(out, face.mesh, rig.blendshape_dict(), times=times, weights=perf.weights,
+                                 animation_name="performance", rotations=perf.quaternions(), pivot=pivot,
+                                 extras={"source": Path(args.video).name, "fps": perf.fps})
+    print(f"tracked {int(tr.tracked.sum())} of {tr.n_frames} frames at {tr.fps:g} fps; {how}; "
+          f"{db.n_bases} deformation bases")
+    report([written])
+
+
 def register(sub) -> None:
     t = sub.add_parser("track", help="head pose (6 DOF) and the 15 expression control parameters of a video's face, "
                                      "per frame, as CSV (Chai et al. 2003)",
@@ -133,3 +219,31 @@ def register(sub) -> None:
                         "stillest markers (default, the more accurate) or the paper's rank-3L factorisation")
     add_output(b, [".npz"])
     b.set_defaults(func=_cmd_mocap_build)
+
+    p = sub.add_parser("perform", help="a video's performance on any face: glTF, MP4 beside the video, or ARKit "
+                                       "CSV (Chai et al. 2003)",
+                       description="Track the performer in VIDEO, turn the 15 control parameters into real motion "
+                                   "from a motion database (filtering and synthesis on segments; the shipped "
+                                   "database unless --db), retarget its deformation bases onto the face (the "
+                                   "default face unless --face) and write .glb (one morph target per basis, "
+                                   "weights and the head's rotation animated), .mp4 (the video and the face side "
+                                   "by side, with the video's sound) or .csv (Live Link Face: ARKit's 52 curves "
+                                   "and the head angles).")
+    p.add_argument("video", metavar="VIDEO", help="a video file of a performer (MP4, MOV, MKV, AVI, WebM)")
+    add_face(p, positional=False)
+    p.add_argument("--db", metavar="MOTION.npz", help="a motion database from faceanim mocap build "
+                                                      "(default: the shipped one)")
+    p.add_argument("--raw", action="store_true", help="map each frame's controls directly (no filtering or "
+                                                      "synthesis), to compare")
+    p.add_argument("--window", type=_arg_type("--window", 1, 120, integer=True), default=20,
+                   help="segment length W in frames (the paper: 20)")
+    p.add_argument("--k", type=_arg_type("--k", 1, 500, integer=True), default=30, help="nearest segments K")
+    p.add_argument("--overlap", type=_arg_type("--overlap", 1, 120, integer=True), default=5,
+                   help="segments blended per frame (the delay is overlap - 1 frames; the paper: 5)")
+    p.add_argument("--neutral-frame", type=_arg_type("--neutral-frame", 0, MAX_FRAMES, integer=True), metavar="N",
+                   help="the frame with the performer's neutral face (default: found automatically)")
+    p.add_argument("--size", type=_arg_type("--size", 64, 1024, integer=True), default=512,
+                   help="MP4 height in pixels")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_output(p, [".glb", ".mp4", ".csv"])
+    p.set_defaults(func=_cmd_perform)

@@ -182,3 +182,31 @@ def _is_float(text: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def write_arkit_csv(path: str | os.PathLike, weights: np.ndarray, fps: float, head: np.ndarray | None = None):
+    """Write a take as Live Link Face CSV (what :func:`read_arkit_csv`, Unreal's importer and
+    spreadsheet users read): ``weights`` (F, 52) in :data:`ARKIT_NAMES` order, ``head`` (F, 3)
+    yaw, pitch, roll in radians (zeros if None), eyes' angles zero, timecodes from 00:00:00:00."""
+    from pathlib import Path
+
+    from faceanim.errors import FaceAnimError
+    from faceanim.io.files import atomic_output
+
+    w = np.asarray(weights, dtype=np.float64)
+    h = np.zeros((len(w), 3)) if head is None else np.asarray(head, dtype=np.float64)
+    if w.ndim != 2 or w.shape[1] != len(ARKIT_NAMES) or h.shape != (len(w), 3) or len(w) < 1:
+        raise FaceAnimError(f"an ARKit take needs (F, {len(ARKIT_NAMES)}) weights and (F, 3) head angles")
+    if not (np.all(np.isfinite(w)) and np.all(np.isfinite(h)) and 0 < fps <= 1000):
+        raise FaceAnimError("an ARKit take needs finite weights and head angles and a frame rate in (0, 1000]")
+    with atomic_output(path, "ARKit take") as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
+        out = csv.writer(fh)
+        out.writerow(["Timecode", "BlendShapeCount", *ARKIT_NAMES, *HEAD_NAMES, *EYE_NAMES])
+        for i in range(len(w)):
+            t = i / fps
+            s = int(np.floor(t + 1e-9))
+            frames = (t - s) * TIMECODE_RATE
+            code = f"{s // 3600:02d}:{s // 60 % 60:02d}:{s % 60:02d}:{frames:06.3f}"
+            out.writerow([code, str(len(ARKIT_NAMES) + len(HEAD_NAMES) + len(EYE_NAMES)),
+                          *[f"{x:.6f}" for x in w[i]], *[f"{x:.6f}" for x in h[i]], *["0"] * len(EYE_NAMES)])
+    return Path(path)

@@ -153,7 +153,8 @@ def _check_extras(extras: Any) -> dict:
 def write_gltf(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.ndarray] | None = None,
                times: np.ndarray | None = None, weights: np.ndarray | None = None,
                animation_name: str = "expressions", *, quantize: bool = False,
-               extras: dict | None = None) -> Path:
+               extras: dict | None = None, rotations: np.ndarray | None = None,
+               pivot: np.ndarray | None = None) -> Path:
     """Write ``mesh`` as GLB with optional morph targets and a morph-weight animation.
 
     Parameters
@@ -164,6 +165,9 @@ def write_gltf(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np
         layout and its error bound); off by default
     extras : JSON-safe metadata stored as the scene's ``extras`` (three.js: ``gltf.scene.userData``;
         Blender: the scene's custom properties), e.g. ``{"audio": "speech.wav"}``
+    rotations : (F, 4) unit quaternions (x, y, z, w) at ``times``: the head turning about ``pivot``
+        (3,), animated on a parent node ``head`` at the pivot (the mesh keeps its coordinates: a
+        child node takes the pivot off again)
     """
     path = Path(path)
     blendshapes = dict(blendshapes or {})
@@ -262,6 +266,18 @@ def write_gltf(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np
     gltf.meshes = [gm]
     gltf.nodes = [node]
     gltf.scenes = [g.Scene(nodes=[0])]
+    head = None
+    if rotations is not None:
+        q = np.asarray(rotations, dtype=np.float64)
+        pv = np.zeros(3) if pivot is None else np.asarray(pivot, dtype=np.float64)
+        if times is None or q.shape != (len(times), 4) or not np.all(np.isfinite(q)) or pv.shape != (3,) \
+                or not np.all(np.isfinite(pv)) or np.any(np.abs(np.linalg.norm(q, axis=1) - 1) > 1e-3):
+            raise FaceAnimError("head rotations must be (F, 4) unit quaternions at the F animation times, "
+                                "about a finite (3,) pivot")
+        offset = g.Node(name="head_offset", translation=[float(-x) for x in pv], children=[0])
+        head = g.Node(name="head", translation=[float(x) for x in pv], children=[1])
+        gltf.nodes = [node, offset, head]
+        gltf.scenes = [g.Scene(nodes=[2])]
     if extras:
         gltf.scenes[0].extras = extras
     gltf.scene = 0
@@ -277,11 +293,13 @@ def write_gltf(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np
             raise FaceAnimError("animation times must be >= 0 and strictly increasing")
         ti = buf.add(t, g.FLOAT, g.SCALAR, minmax=True)
         wo = buf.add(w.ravel(), g.FLOAT, g.SCALAR)
-        gltf.animations = [g.Animation(
-            name=animation_name,
-            samplers=[g.AnimationSampler(input=ti, output=wo, interpolation="LINEAR")],
-            channels=[g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(node=0, path="weights"))],
-        )]
+        samplers = [g.AnimationSampler(input=ti, output=wo, interpolation="LINEAR")]
+        channels = [g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(node=0, path="weights"))]
+        if head is not None:
+            qo = buf.add(np.asarray(rotations, dtype=np.float32), g.FLOAT, g.VEC4)
+            samplers.append(g.AnimationSampler(input=ti, output=qo, interpolation="LINEAR"))
+            channels.append(g.AnimationChannel(sampler=1, target=g.AnimationChannelTarget(node=2, path="rotation")))
+        gltf.animations = [g.Animation(name=animation_name, samplers=samplers, channels=channels)]
 
     while len(buf.data) % 4:
         buf.data.append(0)

@@ -124,8 +124,9 @@ class NeighbourhoodGraph:
 class Synthesiser:
     """Filtering and synthesis against one motion database (see the module docstring).
 
-    ``controls`` (F, 15) and ``markers`` (F, P, 3) of the database; ``window`` W, ``k`` K
-    neighbours, ``variance`` kept by the local model, ``overlap`` segments blended per frame.
+    ``controls`` (F, 15) and ``markers`` (F, ...) of the database: marker positions (F, P, 3) or
+    any per-frame motion, such as its weights in the deformation bases (F, L); ``window`` W, ``k``
+    K neighbours, ``variance`` kept by the local model, ``overlap`` segments blended per frame.
     """
 
     def __init__(self, controls, markers, window: int = 20, k: int = 30, variance: float = 0.99,
@@ -174,8 +175,8 @@ class Synthesiser:
         return nn, filtered, w / w.sum()
 
     def synthesise(self, controls: np.ndarray) -> np.ndarray:
-        """(F, P, 3) markers for (F, 15) query controls (frames before the first full window reuse
-        it; the output frame t is final after frame t + overlap - 1)."""
+        """(F, ...) motion (as the database's ``markers``) for (F, 15) query controls (frames before
+        the first full window reuse it; the output frame t is final after frame t + overlap - 1)."""
         q = np.asarray(controls, dtype=np.float64)
         if q.ndim != 2 or q.shape[1] != self.db.controls.shape[1] // self.window or not np.all(np.isfinite(q)):
             raise FaceAnimError(f"query controls must be finite (frames, {self.db.controls.shape[1] // self.window})")
@@ -190,7 +191,7 @@ class Synthesiser:
             seg = padded[t:t + w_len].reshape(-1)  # frames t - W + 1 .. t
             nn, _, wts = self._local(seg)
             frames = self.db.ends[nn][:, None] - offsets[None]  # (K, W) database frames
-            est = np.einsum("k,kwpd->wpd", wts, self.markers[frames])  # the synthesised segment
+            est = np.tensordot(wts, self.markers[frames], axes=1)  # the synthesised segment
             # this segment's estimates of frames t - overlap + 1 .. t, blended by alpha(beta)
             for j in range(self.overlap):
                 f = t - j
@@ -200,7 +201,7 @@ class Synthesiser:
                 a = 0.5 * np.cos(beta * np.pi) + 0.5
                 out[f] += a * est[w_len - 1 - j]
                 weight[f] += a
-        return out / weight[:, None, None]
+        return out / weight.reshape((-1,) + (1,) * (out.ndim - 1))
 
     def filter(self, controls: np.ndarray) -> np.ndarray:
         """(F, 15) the query controls projected on the local models (each frame taken from the

@@ -1,0 +1,150 @@
+"""Performance-driven animation (Chai, Xiao & Hodgins 2003): a video of a performer drives any face.
+
+The four components, each in its own layer, meet here:
+
+1. video analysis (:mod:`faceanim.drivers.video.tracking`): head pose and 15 control parameters
+   per frame;
+2. the motion database (:mod:`faceanim.build.motion`; one ships with the package, built from a
+   real ARKit recording by ``scripts/build_default_motion.py``);
+3. filtering and synthesis (:mod:`faceanim.drivers.video.synthesis`): the noisy controls become
+   the database's real motion, as weights of its L deformation bases; ``raw=True`` maps each
+   frame's controls linearly instead (the baseline a user can compare with);
+4. retargeting (:mod:`faceanim.rig.performance`): the bases moved onto the face once; a frame is
+   then L weights, whatever the face's vertex count.
+
+:func:`perform` does 3 on a tracking; :func:`performance_rig` does 4; the writers put the result
+in glTF (morph targets + weights, head rotation on a node), MP4 (the face beside the video, with
+its sound) or Live Link Face CSV (ARKit's 52 curves and the head angles).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from faceanim.build.motion import MotionDatabase, head_rotation, load_database
+from faceanim.drivers.video.synthesis import Synthesiser
+from faceanim.drivers.video.tracking import Tracking
+from faceanim.errors import FaceAnimError
+from faceanim.face.face import Face
+from faceanim.rig.performance import basis_names, retarget
+from faceanim.rig.rig import Rig
+
+WINDOW, K, OVERLAP = 20, 30, 5  # the paper's segment length and blend; K neighbours
+
+
+@lru_cache(maxsize=1)
+def default_database() -> MotionDatabase:
+    """The motion database that ships with faceanim (built from the MIT Live Link Face take by
+    ``scripts/build_default_motion.py``)."""
+    from importlib import resources
+
+    with resources.as_file(resources.files("faceanim").joinpath("assets", "motion_default.npz")) as p:
+        return load_database(p)
+
+
+@dataclass
+class Performance:
+    """A performance on a motion database's bases: ``weights`` (F, L) per video frame, the
+    tracked head ``pose`` (F, 6; see :data:`~faceanim.drivers.video.tracking.POSE_NAMES`) with
+    untracked frames held from the nearest tracked one, ``tracked`` (F,) and ``fps``."""
+
+    fps: float
+    weights: np.ndarray
+    pose: np.ndarray
+    tracked: np.ndarray
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.weights)
+
+    def rotations(self) -> np.ndarray:
+        """(F, 3, 3) the head's rotation per frame (yaw, pitch, roll of the tracking)."""
+        a = np.radians(self.pose[:, :3])
+        return head_rotation(a[:, 0], a[:, 1], a[:, 2])
+
+    def quaternions(self) -> np.ndarray:
+        """(F, 4) the head's rotation as glTF quaternions (x, y, z, w)."""
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_matrix(self.rotations()).as_quat()
+
+
+def hold_untracked(values: np.ndarray, tracked: np.ndarray) -> np.ndarray:
+    """``values`` (F, n) with each untracked frame given the nearest earlier tracked frame's values
+    (the first tracked frame's before it): the avatar holds still while the face is lost."""
+    v = np.array(values, dtype=np.float64)
+    idx = np.flatnonzero(tracked)
+    if not len(idx):
+        raise FaceAnimError("no face was found in any frame of the video; give a video where the face is seen")
+    src = idx[np.clip(np.searchsorted(idx, np.arange(len(v)), side="right") - 1, 0, None)]
+    return v[src]
+
+
+def direct_mapping(db: MotionDatabase) -> np.ndarray:
+    """(16, L) the least-squares linear map from [controls, 1] to basis weights over the
+    database's frames: the per-frame baseline (no segments, no filtering)."""
+    x = np.c_[db.controls, np.ones(db.n_frames)]
+    a, *_ = np.linalg.lstsq(x, db.weights, rcond=None)
+    return a
+
+
+def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = False, window: int = WINDOW,
+            k: int = K, overlap: int = OVERLAP, search: str = "kdtree") -> Performance:
+    """The performance of a tracked video on a motion database (the shipped one by default):
+    filtered and synthesised from segments of ``window`` frames, ``k`` neighbours, blended over
+    ``overlap`` frames (delay ``overlap - 1`` frames), or mapped frame by frame with ``raw``."""
+    db = db or default_database()
+    controls = hold_untracked(tracking.controls, tracking.tracked)
+    pose = hold_untracked(tracking.pose, tracking.tracked)
+    if raw:
+        weights = np.c_[controls, np.ones(len(controls))] @ direct_mapping(db)
+    else:
+        window = min(int(window), db.n_frames)
+        synth = Synthesiser(db.controls, db.weights, window, min(int(k), db.n_frames - window + 1), 0.99,
+                            int(overlap), db.take_starts, search)
+        weights = synth.synthesise(controls)
+    return Performance(tracking.fps, weights, pose, tracking.tracked.copy())
+
+
+def performance_rig(face: Face, db: MotionDatabase | None = None) -> Rig:
+    """The face's rig for a motion database: one control per deformation basis (retargeting)."""
+    db = db or default_database()
+    return retarget(face, db.basis_curves, db.curve_names, names=basis_names(db.n_bases))
+
+
+def head_pivot(face: Face) -> np.ndarray:
+    """(3,) the point the head turns about: between the ears, at the eyes' height, one
+    inter-ocular distance behind the nose bridge's plane (roughly the top of the neck)."""
+    fr = face.frame
+    lm = face.landmarks
+    centre = 0.5 * (lm[234] + lm[454])
+    centre = centre + fr.rotation[1] * float((0.5 * (lm[33] + lm[263]) - centre) @ fr.rotation[1])
+    return centre - fr.rotation[2] * 0.3 * fr.iod
+
+
+def arkit_curves(perf: Performance, db: MotionDatabase) -> np.ndarray:
+    """(F, 52) ARKit curves (Live Link Face order) of a performance: the bases written as the
+    generic head's shapes (ICT names) mapped back to ARKit's names, clamped to [0, 1]."""
+    from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
+
+    ict = perf.weights @ db.basis_curves
+    col = {n: i for i, n in enumerate(db.curve_names)}
+    out = np.zeros((perf.n_frames, len(ARKIT_NAMES)))
+    for a, name in enumerate(ARKIT_NAMES):
+        parts = [col[n] for n in ict_name(name) if n in col]
+        if parts:
+            out[:, a] = ict[:, parts].mean(axis=1)
+    return np.clip(out, 0.0, 1.0)
+
+
+def frames_of(perf: Performance, rig: Rig, pivot: np.ndarray, chunk: int = 64):
+    """The face's vertices per frame: the bases blended, then turned by the head's rotation
+    about ``pivot``."""
+    rot = perf.rotations()
+    for a in range(0, perf.n_frames, chunk):
+        v = rig.evaluate(perf.weights[a:a + chunk])
+        for j, vf in enumerate(v):
+            yield (vf - pivot) @ rot[a + j].T + pivot
