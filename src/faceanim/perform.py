@@ -95,17 +95,26 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
             k: int = K, overlap: int = OVERLAP, search: str = "kdtree") -> Performance:
     """The performance of a tracked video on a motion database (the shipped one by default):
     filtered and synthesised from segments of ``window`` frames, ``k`` neighbours, blended over
-    ``overlap`` frames (delay ``overlap - 1`` frames), or mapped frame by frame with ``raw``."""
+    ``overlap`` frames (delay ``overlap - 1`` frames), or mapped frame by frame with ``raw``. A
+    video at another frame rate than the database is resampled to it for the synthesis (segments
+    are W of the database's frames) and back."""
     db = db or default_database()
     controls = hold_untracked(tracking.controls, tracking.tracked)
     pose = hold_untracked(tracking.pose, tracking.tracked)
     if raw:
         weights = np.c_[controls, np.ones(len(controls))] @ direct_mapping(db)
     else:
+        t_video = np.arange(len(controls)) / tracking.fps
+        resample = abs(tracking.fps - db.fps) > 1e-6 * db.fps
+        if resample:
+            t_db = np.arange(int(np.floor(t_video[-1] * db.fps + 1e-9)) + 1) / db.fps
+            controls = np.stack([np.interp(t_db, t_video, c) for c in controls.T], axis=1)
         window = min(int(window), db.n_frames)
         synth = Synthesiser(db.controls, db.weights, window, min(int(k), db.n_frames - window + 1), 0.99,
                             int(overlap), db.take_starts, search)
         weights = synth.synthesise(controls)
+        if resample:
+            weights = np.stack([np.interp(t_video, t_db, w) for w in weights.T], axis=1)
     return Performance(tracking.fps, weights, pose, tracking.tracked.copy())
 
 
