@@ -1,0 +1,118 @@
+"""Performance-driven animation (Chai, Xiao & Hodgins 2003): the cost of one video frame, stage by
+stage, on a ~27k-vertex target, and retargeting at run time against the per-vertex transfer the
+paper replaces.
+
+    .venv/bin/python benchmarks/bench_perform.py ../shared/data [--blas-threads N]   (about a minute)
+
+Video: ``talking-head-videos/d3.mp4`` (354 frames, 512 x 512). Target: the ICT head from
+``ict-facekit/`` (26,719 vertices, its landmarks detected); the default face (24,591) without the data.
+
+1. Per frame, streaming (each stage timed over the whole clip, per frame): decoding, tracking
+   (MediaPipe face mesh + pose + 15 controls), filtering and synthesis (one segment query: K
+   nearest by k-d tree, graph or brute force, local PCA, blend), and retargeting (the L basis
+   weights blended into all vertices: one (V, 3L) x (3L,) product). End to end = the sum
+   (rendering excluded); frames per second = 1 / that.
+2. Retargeting at run time, single frame and 100-frame batch, warm:
+   - baseline: per-vertex transfer at run time (expression cloning as the paper describes it):
+     the frame's motion on the source head (its shapes weighted), interpolated at each target
+     vertex's corresponding point and turned by that vertex's Jacobian (all precomputed: only
+     the per-frame work is timed);
+   - faceanim: the precomputed target bases blended (eq. 7), the rig's ``LinearDeformer``.
+   Plus the bind (cold, once per face and database), and the retained and peak memory of it.
+
+Compare ratios; wall-clock times depend on the machine's load and are never asserted.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from _timing import arguments, best, blas_threads, fmt_bytes, fmt_time, header, table, traced
+
+from faceanim.drivers.video.synthesis import Synthesiser
+from faceanim.drivers.video.tracking import track_frames
+from faceanim.face.face import Face
+from faceanim.face.generic_head import generic_head
+from faceanim.io.video import video_frames, video_info
+from faceanim.perform import default_database, hold_untracked
+from faceanim.rig.performance import correspondence, jacobians, retarget, source_bases
+
+
+def main() -> None:
+    args = arguments(__doc__, "the shared data folder (../shared/data)")
+    blas_threads(args.blas_threads)
+    header("faceanim perform: one video frame, stage by stage")
+    data = args.data
+    video = data / "talking-head-videos" / "d3.mp4"
+    ict = data / "ict-facekit" / "generic_neutral_mesh.obj"
+    face = Face.load(ict) if ict.is_file() else Face.default()
+    db = default_database()
+    info = video_info(video)
+
+    t0 = time.perf_counter()
+    frames = list(video_frames(info))
+    t_decode = (time.perf_counter() - t0) / len(frames)
+    t0 = time.perf_counter()
+    tr = track_frames(frames, info.fps)
+    t_track = (time.perf_counter() - t0) / len(frames)
+    controls = hold_untracked(tr.controls, tr.tracked)
+
+    t0 = time.perf_counter()
+    rig, retained, peak = traced(lambda: retarget(face, db.basis_curves, db.curve_names))
+    t_bind = time.perf_counter() - t0
+
+    synth = {}
+    for search in ("kdtree", "graph", "brute"):
+        s = Synthesiser(db.controls, db.weights, 20, 30, 0.99, 5, db.take_starts, search)
+        t0 = time.perf_counter()
+        weights = s.synthesise(controls)
+        synth[search] = (time.perf_counter() - t0) / len(controls)
+    one = weights[len(weights) // 2][None]
+    t_blend = best(lambda: rig.deformer.apply_blendshapes(one), repeat=30)
+
+    rows = []
+    for search in ("kdtree", "graph", "brute"):
+        total = t_decode + t_track + synth[search] + t_blend
+        rows.append([search, fmt_time(t_decode), fmt_time(t_track), fmt_time(synth[search]), fmt_time(t_blend),
+                     fmt_time(total), f"{1 / total:.0f}", f"{1 / (total - t_decode):.0f}"])
+    table(rows, ["K-NN search", "decode", "track", "filter + synthesise", "retarget (blend)", "end to end",
+                 "frames/s", "frames/s without decoding"],
+          title=f"\n1. Per frame over {len(frames)} frames of {video.name}; target {face.mesh.n_vertices} vertices, "
+                f"L = {db.n_bases} bases")
+
+    # 2. run-time retargeting: per-vertex transfer vs blended bases
+    head = generic_head()
+    src = source_bases(db.basis_curves, db.curve_names)
+    tri, bary = correspondence(face, head)
+    corners = head.mesh.faces[tri]
+    x_s = np.einsum("vc,vcd->vd", bary, head.mesh.vertices[corners])
+    from faceanim.deform.rbf import landmark_tps
+    from faceanim.rig.performance import SMOOTHING
+
+    f = landmark_tps(head.landmarks(), face.landmarks, "landmarks", merge_repeated=True, smoothing=SMOOTHING)
+    jac = jacobians(f, x_s, 1e-3 * float(np.ptp(head.landmarks(), axis=0).max()))
+    curves = db.basis_curves
+    shapes = np.stack([head.shape(n) for n in db.curve_names])  # (C, Vs, 3)
+
+    def per_vertex(w):  # the frame's source motion, carried vertex by vertex
+        motion = np.einsum("fc,cvd->fvd", w @ curves, shapes)
+        at = np.einsum("vc,fvcd->fvd", bary, motion[:, corners])
+        return face.mesh.vertices + np.einsum("vij,fvj->fvi", jac, at)
+
+    batch = weights[:100]
+    check = np.abs(per_vertex(one)[0] - rig.evaluate(one)[0]).max()
+    rows = []
+    for label, fn in (("per-vertex transfer at run time (baseline)", per_vertex),
+                      ("blended target bases (eq. 7, LinearDeformer)", rig.evaluate)):
+        rows.append([label, fmt_time(best(lambda fn=fn: fn(one), repeat=10)),
+                     fmt_time(best(lambda fn=fn: fn(batch), repeat=3) / len(batch))])
+    table(rows, ["method", "1 frame", "per frame in a 100-frame batch"],
+          title=f"\n2. Retargeting at run time ({face.mesh.n_vertices} target vertices; the two agree within "
+                f"{check:.1e} mesh units)",
+          notes=[f"bind (once per face and database, cold, under tracemalloc): {fmt_time(t_bind)}; the rig retains "
+                 f"{fmt_bytes(retained)}, peak {fmt_bytes(peak)} while binding"])
+
+
+if __name__ == "__main__":
+    main()
