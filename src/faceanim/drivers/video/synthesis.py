@@ -58,35 +58,68 @@ def segments(controls: np.ndarray, window: int, take_starts=(0,)) -> SegmentData
 
 
 class NeighbourhoodGraph:
-    """The paper's data structure (4.4): every segment linked to its ``degree`` nearest segments
-    (both ways); K-nearest queries walk it best-first from the nearest of the previous query's
-    neighbours, visiting at most ``budget`` segments, so a query costs about O(K) whatever the
-    database's size. The first query (or after :meth:`reset`) is answered exactly."""
+    """The paper's data structure (4.4): every segment linked to its nearest segments and to the
+    next segment of its take; a K-nearest query starts from the previous query's neighbours and
+    their successors (the temporal coherence of the control signal: if segment i was near the
+    last query, segment i + 1 is likely near this one) and walks the graph as a beam of
+    ``budget * K`` segments, expanding the whole beam's links at once, until its K best stop
+    changing. The links are chosen diverse (a candidate is skipped when it is nearer to an
+    already chosen link than to the segment: the rule of HNSW graphs), so that near-copies of a
+    motion do not use up all the links and trap the walk. The first query (or after
+    :meth:`reset`) is answered exactly.
 
-    def __init__(self, points: np.ndarray, degree: int = 12, budget: int = 4):
+    ``points`` (S, D) segments; ``successor`` (S,) the next segment of the same take (itself at a
+    take's end; default: the next row)."""
+
+    def __init__(self, points: np.ndarray, degree: int = 12, budget: int = 4, successor: np.ndarray | None = None,
+                 max_steps: int = 8):
         from scipy.spatial import cKDTree
 
         self.points = np.asarray(points, dtype=np.float64)
         n = len(self.points)
-        degree = int(min(max(degree, 1), n - 1)) if n > 1 else 0
         self.tree = cKDTree(self.points)
+        self.successor = (np.minimum(np.arange(n) + 1, n - 1) if successor is None
+                          else np.asarray(successor, dtype=np.int64))
+        links = [[] for _ in range(n)]
+        degree = int(min(max(degree, 1), n - 1)) if n > 1 else 0
         if degree:
-            _, nn = self.tree.query(self.points, k=degree + 1)
-            pairs = np.c_[np.repeat(np.arange(n), degree), nn[:, 1:].reshape(-1)]
-            pairs = np.unique(np.sort(np.vstack([pairs, pairs[:, ::-1]]), axis=1), axis=0)
-            both = np.vstack([pairs, pairs[:, ::-1]])
-            order = np.lexsort((both[:, 1], both[:, 0]))
-            both = both[order]
-            self.starts = np.searchsorted(both[:, 0], np.arange(n + 1))
-            self.links = both[:, 1]
-        else:
-            self.starts, self.links = np.zeros(n + 1, np.int64), np.zeros(0, np.int64)
-        self.budget = int(budget)
+            cand_k = min(3 * degree + 1, n)
+            dist, nn = self.tree.query(self.points, k=cand_k)
+            for i in range(n):
+                chosen: list[int] = []
+                for dj, j in zip(dist[i, 1:], nn[i, 1:]):
+                    if len(chosen) >= degree:
+                        break
+                    if chosen:
+                        dc = np.linalg.norm(self.points[chosen] - self.points[j], axis=1)
+                        if dc.min() < dj:  # nearer to a chosen link than to i: reached through it
+                            continue
+                    chosen.append(int(j))
+                links[i].extend(chosen)
+                for j in chosen:
+                    links[j].append(i)
+        for i in range(n):
+            if self.successor[i] != i:
+                links[i].append(int(self.successor[i]))
+                links[int(self.successor[i])].append(i)
+        lists = [np.unique(np.array(lk, dtype=np.int64)) for lk in links]
+        self.starts = np.concatenate([[0], np.cumsum([len(lk) for lk in lists])]).astype(np.int64)
+        self.links = np.concatenate(lists) if lists else np.zeros(0, np.int64)
+        self.budget, self.max_steps = int(budget), int(max_steps)
         self.last: np.ndarray | None = None
         self.visited_total = 0
+        self._seen = np.zeros(n, dtype=bool)
 
     def reset(self) -> None:
         self.last = None
+
+    def _neighbours(self, idx: np.ndarray) -> np.ndarray:
+        if not len(idx):
+            return idx
+        lo, hi = self.starts[idx], self.starts[idx + 1]
+        take = np.repeat(hi - lo, 1)
+        rows = np.repeat(lo, take) + (np.arange(take.sum()) - np.repeat(np.cumsum(take) - take, take))
+        return self.links[rows]
 
     def query(self, q: np.ndarray, k: int) -> np.ndarray:
         """Indices of (about) the ``k`` nearest points to ``q``, nearest first."""
@@ -94,30 +127,37 @@ class NeighbourhoodGraph:
             _, nn = self.tree.query(q, k=k)
             self.last = np.atleast_1d(nn)
             return self.last
-        dist = {}
-
-        def d(i):
-            if i not in dist:
-                dist[i] = float(np.sum((self.points[i] - q) ** 2))
-            return dist[i]
-
-        seeds = [int(i) for i in self.last]
-        start = min(seeds, key=d)
-        heap = [(d(start), start)]
-        seen = {start}
-        done = []
-        limit = self.budget * k
-        while heap and len(done) < limit:
-            dd, i = heapq.heappop(heap)
-            done.append((dd, i))
-            for j in self.links[self.starts[i]:self.starts[i + 1]]:
-                j = int(j)
-                if j not in seen:
-                    seen.add(j)
-                    heapq.heappush(heap, (d(j), j))
-        self.visited_total += len(dist)
-        best = sorted(done)[:k]
-        self.last = np.array([i for _, i in best], dtype=np.int64)
+        seen = self._seen
+        beam = np.unique(np.concatenate([self.last, self.successor[self.last]]))
+        seen[beam] = True
+        touched = [beam]
+        diff = self.points[beam] - q
+        dist = np.einsum("ij,ij->i", diff, diff)
+        ef = max(self.budget * k, k)
+        expanded = np.zeros(0, dtype=np.int64)
+        best = None
+        for _ in range(self.max_steps):
+            order = np.argsort(dist)[:ef]
+            beam, dist = beam[order], dist[order]
+            top = beam[:k]
+            if best is not None and np.array_equal(top, best):
+                break
+            best = top
+            fresh = beam[~np.isin(beam, expanded)]
+            expanded = np.concatenate([expanded, fresh])
+            nb = self._neighbours(fresh)
+            nb = np.unique(nb[~seen[nb]])
+            if not len(nb):
+                break
+            seen[nb] = True
+            touched.append(nb)
+            diff = self.points[nb] - q
+            beam = np.concatenate([beam, nb])
+            dist = np.concatenate([dist, np.einsum("ij,ij->i", diff, diff)])
+        for t in touched:
+            seen[t] = False
+        self.visited_total += int(sum(len(t) for t in touched))
+        self.last = beam[np.argsort(dist)[:k]]
         return self.last
 
 
@@ -146,7 +186,14 @@ class Synthesiser:
         self.window, self.k, self.variance, self.overlap = int(window), int(k), float(variance), int(overlap)
         self.search = search
         self.tree = cKDTree(self.db.controls)
-        self.graph = NeighbourhoodGraph(self.db.controls) if search == "graph" else None
+        if search == "graph":
+            ends = self.db.ends
+            nxt = np.arange(len(ends)) + 1
+            nxt[-1] = len(ends) - 1
+            same = np.r_[ends[1:] == ends[:-1] + 1, False]
+            self.graph = NeighbourhoodGraph(self.db.controls, successor=np.where(same, nxt, np.arange(len(ends))))
+        else:
+            self.graph = None
 
     def nearest(self, query: np.ndarray) -> np.ndarray:
         """The K nearest database segments of a (W*15,) query segment."""
