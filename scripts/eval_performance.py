@@ -6,9 +6,12 @@ how late and how faithful the avatar's face is, per video, for
   raw mapping; standard parameters (min_cutoff 1 Hz, beta 0.007, d_cutoff 1 Hz) and a tuned beta.
   The filter runs on each control in units of its spread over the motion database (the controls
   mix mouth widths and degrees; one beta then fits all 15);
-- ``paper``: the paper's data-driven filtering and synthesis at the defaults (window 20, K 30,
-  overlap 5);
-- ``paper-lowdelay``: the same with window 10, overlap 2 (less delay).
+- ``paper``: the paper's data-driven filtering and synthesis, one search on all 15 controls
+  (``perform(whole_face=True)``), its window 20, overlap 5 (delay 4 frames), K 30;
+- ``faceanim``: ``faceanim perform``'s default: feature-wise (the lower face from the mouth's
+  opening, width and height, the upper face from the nose, eyes and brows), window 5, overlap 2
+  (delay 1 frame), K 30;
+- ``faceanim W20``: the same at the paper's window and overlap (what the shorter delay costs).
 
 Columns (one row per video and method, then the mean over the videos per method):
 
@@ -29,6 +32,9 @@ Columns (one row per video and method, then the mean over the videos per method)
 - ``r signed@0``: as ``r@0`` with the avatar's opening signed (landmark 13 minus 14 along the
   face's up axis): a distance cannot tell a crossed mouth (lower lip pushed through the upper)
   from an open one.
+- ``r eyes``, ``r brows``: the same correlation (lag 0, mean of left and right) for the lids'
+  opening (landmarks 159-145, 386-374 along the up axis, against the tracked raw ``eye_open``) and
+  the brows' height over the eyes (105-159, 334-386, against ``brow_raise``).
 
 Also writes the table to ``--out`` (default /tmp/eval_performance.md) and, with ``--sheet``, a
 contact sheet: for the two clips whose mouth moves most, four frames spread over the clip, each
@@ -65,7 +71,10 @@ BETA_TUNED = 0.5  # per database standard deviation per second: speech (mouth_op
 # sd/s) lifts the cutoff to ~2-6 Hz, rest stays at 1 Hz
 UPPER_LIP, LOWER_LIP = 13, 14
 CHUNK = 128
-METHODS = ("raw", "one-euro", "one-euro tuned", "paper", "paper-lowdelay")
+METHODS = ("raw", "one-euro", "one-euro tuned", "paper", "faceanim", "faceanim W20")
+# (upper, lower) landmark pairs measured along the face's up axis, and the tracked control
+UPPER_PAIRS = {"eyes": (((159, 145), "eye_open_R"), ((386, 374), "eye_open_L")),
+               "brows": (((105, 159), "brow_raise_R"), ((334, 386), "brow_raise_L"))}
 
 
 def one_euro(x: np.ndarray, fps: float, min_cutoff: float = MIN_CUTOFF, beta: float = BETA,
@@ -117,9 +126,11 @@ def still_frames(tracking) -> np.ndarray:
 
 def avatar_measures(weights: np.ndarray, rig, region: np.ndarray, up: np.ndarray):
     """Per frame: the mean motion (m) of the face-region vertices from the previous frame (NaN at
-    frame 0), the mouth opening (m, distance 13-14) and its signed version (along ``up``)."""
+    frame 0), the mouth opening (m, distance 13-14), its signed version (along ``up``) and the
+    gaps of :data:`UPPER_PAIRS` along ``up`` (dict: pair -> (F,))."""
     head = generic_head()
     step, dist, signed = [np.nan], [], []
+    gaps = {pair: [] for group in UPPER_PAIRS.values() for pair, _ in group}
     last = None
     for a in range(0, len(weights), CHUNK):
         v = rig.evaluate(weights[a:a + CHUNK])
@@ -133,7 +144,9 @@ def avatar_measures(weights: np.ndarray, rig, region: np.ndarray, up: np.ndarray
             gap = lm[UPPER_LIP] - lm[LOWER_LIP]
             dist.append(float(np.linalg.norm(gap)))
             signed.append(float(gap @ up))
-    return np.array(step), np.array(dist), np.array(signed)
+            for a, b in gaps:
+                gaps[(a, b)].append(float((lm[a] - lm[b]) @ up))
+    return np.array(step), np.array(dist), np.array(signed), {k: np.array(v) for k, v in gaps.items()}
 
 
 def lagged_corr(avatar: np.ndarray, video: np.ndarray, ok: np.ndarray, lag: int) -> float:
@@ -158,8 +171,9 @@ def performances(tracking, db) -> dict:
     for name, beta in (("one-euro", BETA), ("one-euro tuned", BETA_TUNED)):
         filtered = one_euro(held / sd, tracking.fps, beta=beta) * sd
         out[name] = perform(dataclasses.replace(tracking, controls=filtered), db, raw=True).weights
-    out["paper"] = perform(tracking, db).weights
-    out["paper-lowdelay"] = perform(tracking, db, window=10, overlap=2).weights
+    out["paper"] = perform(tracking, db, whole_face=True, window=20, overlap=5).weights
+    out["faceanim"] = perform(tracking, db).weights
+    out["faceanim W20"] = perform(tracking, db, window=20, overlap=5).weights
     return out
 
 
@@ -182,7 +196,7 @@ def contact_sheet(path: Path, chosen, face, rig, db) -> None:
         for video, tracking in chosen:
             n = tracking.n_frames
             picks = [int((2 * k + 1) * n / 8) for k in range(4)]
-            perf = perform(tracking, db)
+            perf = perform(tracking, db)  # faceanim perform's default
             verts = {}
             for t, v in enumerate(frames_of(perf, rig, pivot)):
                 if t in picks:
@@ -228,7 +242,7 @@ def main(argv=None) -> None:
     region = np.flatnonzero(face.face_region)
     up = face.frame.rotation[1]
     header = ("| video | method | tracked | jitter@rest (mm/frame) | motion (mm/frame) | mouth 5-95% (mm) | lag "
-              "(frames) | r@lag | r@0 | r signed@0 |")
+              "(frames) | r@lag | r@0 | r signed@0 | r eyes | r brows |")
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
     per_method = {m: [] for m in METHODS}
     tracked_videos = []
@@ -239,7 +253,10 @@ def main(argv=None) -> None:
         mouth_video = tracking.raw[:, MOUTH]
         still = still_frames(tracking)
         for method, weights in performances(tracking, db).items():
-            step, dist, signed = avatar_measures(weights, rig, region, up)
+            step, dist, signed, gaps = avatar_measures(weights, rig, region, up)
+            upper = {group: float(np.nanmean([lagged_corr(gaps[pair], tracking.raw[:, CONTROL_NAMES.index(c)], ok, 0)
+                                              for pair, c in pairs]))
+                     for group, pairs in UPPER_PAIRS.items()}
             lags = np.arange(-MAX_LAG, MAX_LAG + 1)
             rs = np.array([lagged_corr(dist, mouth_video, ok, int(k)) for k in lags])
             best = int(lags[np.nanargmax(rs)]) if np.isfinite(rs).any() else 0
@@ -247,11 +264,13 @@ def main(argv=None) -> None:
                    "motion": 1e3 * float(np.nanmean(step)),
                    "lo": 1e3 * np.percentile(dist, 5), "hi": 1e3 * np.percentile(dist, 95),
                    "lag": best, "r_lag": float(rs[lags == best][0]), "r0": lagged_corr(dist, mouth_video, ok, 0),
-                   "r_signed": lagged_corr(signed, mouth_video, ok, 0), "tracked": ok.mean()}
+                   "r_signed": lagged_corr(signed, mouth_video, ok, 0), "tracked": ok.mean(),
+                   "r_eyes": upper["eyes"], "r_brows": upper["brows"]}
             per_method[method].append(row)
             lines.append(f"| {video.name} | {method} | {int(ok.sum())}/{len(ok)} | {fmt(row['jitter'], '.3f')} | "
                          f"{fmt(row['motion'], '.3f')} | {row['lo']:.1f}..{row['hi']:.1f} | {best:+d} | "
-                         f"{fmt(row['r_lag'])} | {fmt(row['r0'])} | {fmt(row['r_signed'])} |")
+                         f"{fmt(row['r_lag'])} | {fmt(row['r0'])} | {fmt(row['r_signed'])} | "
+                         f"{fmt(row['r_eyes'])} | {fmt(row['r_brows'])} |")
             print(lines[-1], flush=True)
     for method, rows in per_method.items():
         def mean(key, rows=rows):
@@ -259,11 +278,12 @@ def main(argv=None) -> None:
 
         lines.append(f"| **mean** | {method} | {100 * mean('tracked'):.0f}% | {mean('jitter'):.3f} | "
                      f"{mean('motion'):.3f} | {mean('lo'):.1f}..{mean('hi'):.1f} | {mean('lag'):+.1f} | "
-                     f"{mean('r_lag'):.2f} | {mean('r0'):.2f} | {mean('r_signed'):.2f} |")
+                     f"{mean('r_lag'):.2f} | {mean('r0'):.2f} | {mean('r_signed'):.2f} | {mean('r_eyes'):.2f} | "
+                     f"{mean('r_brows'):.2f} |")
     lines += ["", ("jitter@rest and motion: expression only (no head rotation), face-region vertices of the default face. "
               "lag: only meaningful where r@lag is high (with r near 0 the peak is noise, often at +-10). "
-              "The paper's method looks ahead: frame t is final once frame t + overlap - 1 is seen (4 frames at the "
-              "defaults, 1 for paper-lowdelay), a latency that does not show as lag in an offline run; One-Euro is "
+              "Synthesis looks ahead: frame t is final once frame t + overlap - 1 is seen (4 frames for paper and "
+              "faceanim W20, 1 for faceanim), a latency that does not show as lag in an offline run; One-Euro is "
               "causal, so its latency is its lag.")]
     table = "\n".join(lines)
     print("\n" + table)

@@ -7,8 +7,9 @@ The four components, each in its own layer, meet here:
 2. the motion database (:mod:`faceanim.build.motion`; one ships with the package, built from a
    real ARKit recording by ``scripts/build_default_motion.py``);
 3. filtering and synthesis (:mod:`faceanim.drivers.video.synthesis`): the noisy controls become
-   the database's real motion, as weights of its L deformation bases; ``raw=True`` maps each
-   frame's controls linearly instead (the baseline a user can compare with);
+   the database's real motion, as weights of its L deformation bases, feature-wise (the lower
+   and the upper face each from its own controls; ``whole_face=True`` is the paper's one search);
+   ``raw=True`` maps each frame's controls linearly instead (the baseline a user can compare with);
 4. retargeting (:mod:`faceanim.rig.performance`): the bases moved onto the face once; a frame is
    then L weights, whatever the face's vertex count.
 
@@ -28,11 +29,20 @@ from faceanim.build.motion import MotionDatabase, head_rotation, load_database
 from faceanim.drivers.video.synthesis import Synthesiser
 from faceanim.drivers.video.tracking import Tracking
 from faceanim.errors import FaceAnimError
+from faceanim.face.controls import CONTROL_NAMES
 from faceanim.face.face import Face
 from faceanim.rig.performance import basis_names, retarget
 from faceanim.rig.rig import Rig
 
-WINDOW, K, OVERLAP = 20, 30, 5  # the paper's segment length and blend; K neighbours
+WINDOW, K, OVERLAP = 5, 30, 2  # segment length, neighbours, segments blended (the paper: 20, -, 5)
+# Feature-wise synthesis: the lower face is searched on these controls alone, the upper face on
+# the others; the lips' and corners' tilts and the mouth's sideways shift are left out of the
+# search: tracked, they spread 2-10 times wider than in the database (head roll, noise) and drowned
+# the mouth opening (measured by scripts/eval_performance.py)
+LOWER_FACE = ("mouth_open", "mouth_width", "mouth_centre_y")
+UPPER_FACE = ("nose_width", "nose_height", "eye_open_R", "eye_open_L", "brow_tilt_R", "brow_tilt_L",
+              "brow_raise_R", "brow_raise_L", "brow_gap")
+REGION_EDGE = 0.02  # metres: the lower and upper face blend over this band at the nose tip
 
 
 @lru_cache(maxsize=1)
@@ -91,13 +101,32 @@ def direct_mapping(db: MotionDatabase) -> np.ndarray:
     return a
 
 
+def region_projectors(db: MotionDatabase) -> tuple[np.ndarray, np.ndarray]:
+    """(L, L) matrices taking basis weights to the weights of their motion's lower part (markers
+    below the nose tip, blended over :data:`REGION_EDGE`) and upper part: ``P_low + P_up = I``
+    (the bases are orthonormal), so one motion for the lower face and another for the upper
+    face combine into one set of L weights."""
+    from faceanim.face.generic_head import generic_head
+
+    nose_y = generic_head().landmarks()[2, 1]  # subnasale
+    low = np.clip(0.5 + (nose_y - db.rest[:, 1]) / REGION_EDGE, 0.0, 1.0)
+    p_low = np.einsum("lpd,p,kpd->lk", db.bases, low, db.bases)
+    p_up = np.einsum("lpd,p,kpd->lk", db.bases, 1.0 - low, db.bases)
+    return p_low, p_up
+
+
 def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = False, window: int = WINDOW,
-            k: int = K, overlap: int = OVERLAP, search: str = "kdtree") -> Performance:
+            k: int = K, overlap: int = OVERLAP, search: str = "kdtree", whole_face: bool = False) -> Performance:
     """The performance of a tracked video on a motion database (the shipped one by default):
     filtered and synthesised from segments of ``window`` frames, ``k`` neighbours, blended over
-    ``overlap`` frames (delay ``overlap - 1`` frames), or mapped frame by frame with ``raw``. A
-    video at another frame rate than the database is resampled to it for the synthesis (segments
-    are W of the database's frames) and back."""
+    ``overlap`` frames (delay ``overlap - 1`` frames), or mapped frame by frame with ``raw``.
+
+    Synthesis is feature-wise: the lower face from a search on :data:`LOWER_FACE`, the upper face
+    from one on :data:`UPPER_FACE`, joined by :func:`region_projectors`; ``whole_face`` makes one
+    search on all 15 controls, as the paper does. Controls are compared in units of their spread
+    over the database and held to its range (0.5-99.5th percentile). A video at another frame
+    rate than the database is resampled to it for the synthesis (segments are W of the
+    database's frames) and back."""
     db = db or default_database()
     controls = hold_untracked(tracking.controls, tracking.tracked)
     pose = hold_untracked(tracking.pose, tracking.tracked)
@@ -109,10 +138,25 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
         if resample:
             t_db = np.arange(int(np.floor(t_video[-1] * db.fps + 1e-9)) + 1) / db.fps
             controls = np.stack([np.interp(t_db, t_video, c) for c in controls.T], axis=1)
+        # controls in units of their spread over the database (they mix mouth widths and degrees),
+        # each held to the range the database has (a tracked value beyond it is mostly noise)
+        scale = np.maximum(db.controls.std(axis=0), 1e-9)
+        lo, hi = np.percentile(db.controls, [0.5, 99.5], axis=0)
+        query, known = np.clip(controls, lo, hi) / scale, db.controls / scale
         window = min(int(window), db.n_frames)
-        synth = Synthesiser(db.controls, db.weights, window, min(int(k), db.n_frames - window + 1), 0.99,
-                            int(overlap), db.take_starts, search)
-        weights = synth.synthesise(controls)
+        k = min(int(k), db.n_frames - window + 1)
+
+        def synthesise(cols):
+            synth = Synthesiser(known[:, cols], db.weights, window, k, 0.99, int(overlap), db.take_starts, search)
+            return synth.synthesise(query[:, cols])
+
+        if whole_face:
+            weights = synthesise(list(range(len(CONTROL_NAMES))))
+        else:
+            p_low, p_up = region_projectors(db)
+            lower = synthesise([CONTROL_NAMES.index(n) for n in LOWER_FACE])
+            upper = synthesise([CONTROL_NAMES.index(n) for n in UPPER_FACE])
+            weights = lower @ p_low.T + upper @ p_up.T
         if resample:
             weights = np.stack([np.interp(t_video, t_db, w) for w in weights.T], axis=1)
     return Performance(tracking.fps, weights, pose, tracking.tracked.copy())

@@ -139,10 +139,12 @@ def _cmd_perform(args) -> None:
         face = load_face(args)
     with progress(info.frames_expected, "tracking", args.quiet) as bar:
         tr = track_frames(video_frames(info), info.fps, args.neutral_frame, bar)
-    perf = perform(tr, db, raw=args.raw, window=args.window, k=args.k, overlap=args.overlap)
+    perf = perform(tr, db, raw=args.raw, window=args.window, k=args.k, overlap=args.overlap,
+                   whole_face=args.whole_face)
     how = "mapped frame by frame (--raw)" if args.raw else (
-        f"filtered and synthesised from {db.n_frames} database frames (W={min(args.window, db.n_frames)}, "
-        f"K={args.k}, delay {args.overlap - 1} frames)")
+        f"filtered and synthesised {'on the whole face' if args.whole_face else 'feature-wise'} from "
+        f"{db.n_frames} database frames (W={min(args.window, db.n_frames)}, K={args.k}, "
+        f"delay {args.overlap - 1} frame{'s' if args.overlap != 2 else ''})")
     if suffix == ".csv":
         from faceanim.io.arkit_csv import write_arkit_csv
         from faceanim.perform import arkit_curves
@@ -235,10 +237,13 @@ def register(sub) -> None:
                                                       "(default: the shipped one)")
     p.add_argument("--raw", action="store_true", help="map each frame's controls directly (no filtering or "
                                                       "synthesis), to compare")
-    p.add_argument("--window", type=_arg_type("--window", 1, 120, integer=True), default=20,
+    p.add_argument("--whole-face", action="store_true",
+                   help="one search on all 15 controls, as the paper (default: the lower and upper face each "
+                        "from its own controls, which follows the mouth far better)")
+    p.add_argument("--window", type=_arg_type("--window", 1, 120, integer=True), default=5,
                    help="segment length W in frames (the paper: 20)")
     p.add_argument("--k", type=_arg_type("--k", 1, 500, integer=True), default=30, help="nearest segments K")
-    p.add_argument("--overlap", type=_arg_type("--overlap", 1, 120, integer=True), default=5,
+    p.add_argument("--overlap", type=_arg_type("--overlap", 1, 120, integer=True), default=2,
                    help="segments blended per frame (the delay is overlap - 1 frames; the paper: 5)")
     p.add_argument("--neutral-frame", type=_arg_type("--neutral-frame", 0, MAX_FRAMES, integer=True), metavar="N",
                    help="the frame with the performer's neutral face (default: found automatically)")
