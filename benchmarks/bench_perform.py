@@ -8,8 +8,9 @@ Video: ``talking-head-videos/d3.mp4`` (354 frames, 512 x 512). Target: the ICT h
 ``ict-facekit/`` (26,719 vertices, its landmarks detected); the default face (24,591) without the data.
 
 1. Per frame, streaming (each stage timed over the whole clip, per frame): decoding, tracking
-   (MediaPipe face mesh + pose + 15 controls), filtering and synthesis (one segment query: K
-   nearest by k-d tree, graph or brute force, local PCA, blend), and retargeting (the L basis
+   (MediaPipe face mesh + pose + 15 controls), filtering and synthesis as ``perform`` does it
+   (feature-wise: two segment queries per frame, W = 5, K = 30 nearest by k-d tree, graph or
+   brute force, local PCA, blend), and retargeting (the L basis
    weights blended into all vertices: one (V, 3L) x (3L,) product). End to end = the sum
    (rendering excluded); frames per second = 1 / that.
 2. Retargeting at run time, single frame and 100-frame batch, warm:
@@ -30,12 +31,11 @@ import time
 import numpy as np
 from _timing import arguments, best, blas_threads, fmt_bytes, fmt_time, header, table, traced
 
-from faceanim.drivers.video.synthesis import Synthesiser
 from faceanim.drivers.video.tracking import track_frames
 from faceanim.face.face import Face
 from faceanim.face.generic_head import generic_head
 from faceanim.io.video import video_frames, video_info
-from faceanim.perform import default_database, hold_untracked
+from faceanim.perform import default_database, perform
 from faceanim.rig.performance import correspondence, jacobians, retarget, source_bases
 
 
@@ -56,7 +56,6 @@ def main() -> None:
     t0 = time.perf_counter()
     tr = track_frames(frames, info.fps)
     t_track = (time.perf_counter() - t0) / len(frames)
-    controls = hold_untracked(tr.controls, tr.tracked)
 
     t0 = time.perf_counter()
     rig, retained, peak = traced(lambda: retarget(face, db.basis_curves, db.curve_names))
@@ -64,10 +63,9 @@ def main() -> None:
 
     synth = {}
     for search in ("kdtree", "graph", "brute"):
-        s = Synthesiser(db.controls, db.weights, 20, 30, 0.99, 5, db.take_starts, search)
         t0 = time.perf_counter()
-        weights = s.synthesise(controls)
-        synth[search] = (time.perf_counter() - t0) / len(controls)
+        weights = perform(tr, db, search=search).weights
+        synth[search] = (time.perf_counter() - t0) / len(weights)
     one = weights[len(weights) // 2][None]
     t_blend = best(lambda: rig.deformer.apply_blendshapes(one), repeat=30)
 
