@@ -64,17 +64,30 @@ def _sides(mesh, lm478: np.ndarray, skin: np.ndarray) -> tuple[np.ndarray, np.nd
     from faceanim.face.landmarks import SLITS
     from faceanim.face.regions import slit_sides
 
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
     lm = np.asarray(lm478, dtype=np.float64)
     lower = slit_sides(mesh, lm)
     y = face_frame(lm).to_local(mesh.vertices)[:, 1]
     mouth_y = face_frame(lm).to_local(lm[list(SLITS["mouth"]["corners"])])[:, 1].mean()
+    # what is not skin goes by whole shells (a lower tooth row whose crowns rise above the lips'
+    # line is still lower): each connected piece by its mean height
+    f = mesh.faces
+    keep = ~skin[f].any(axis=1)
+    rows = np.concatenate([f[keep, 0], f[keep, 1], f[keep, 2]])
+    cols = np.concatenate([f[keep, 1], f[keep, 2], f[keep, 0]])
+    n = mesh.n_vertices
+    _, piece = connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)), directed=False)
+    piece_y = np.bincount(piece, weights=y, minlength=piece.max() + 1) / np.bincount(piece, minlength=piece.max() + 1)
+    below_mouth = piece_y[piece] < mouth_y
     names = sorted(SLITS)
     sides = np.zeros((mesh.n_vertices, len(names)), bool)
     near = np.zeros_like(sides)
     for k, name in enumerate(names):
         c = lm[list(SLITS[name]["corners"])]
         width = float(np.linalg.norm(c[1] - c[0]))
-        sides[:, k] = np.where(skin, np.asarray(lower[name], dtype=bool), (y < mouth_y) & (name == "mouth"))
+        sides[:, k] = np.where(skin, np.asarray(lower[name], dtype=bool), below_mouth & (name == "mouth"))
         near[:, k] = np.linalg.norm(mesh.vertices - c.mean(axis=0), axis=1) < NEAR_SLIT * width
     return sides, near
 
