@@ -54,18 +54,19 @@ def source_bases(basis_curves: np.ndarray, curve_names, head: GenericHead | None
 
 SMOOTHING = 1.0  # landmark spline smoothing: on the ICT head (an oracle) 0 gave 56% error, 1.0 gives 7%
 NEAR_SLIT = 0.75  # a vertex keeps to its side of a slit within this many slit widths of its centre
+SLIT_NAMES = ("eye_L", "eye_R", "mouth")  # the columns of _sides
 
 
 def _sides(mesh, lm478: np.ndarray, skin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per vertex: (sides (V, S) bool, True below slit s (mouth, eyes; for what is not skin, below
-    the mouth: the lower teeth, the tongue), near (V, S) bool, within :data:`NEAR_SLIT` slit widths
-    of the slit's centre)."""
+    """Per vertex: (sides (V, S) bool, True below slit s of :data:`SLIT_NAMES` (for what is not
+    skin, below the mouth: the lower teeth; False for the eyes), near (V, S) bool, within
+    :data:`NEAR_SLIT` slit widths of the slit's centre)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
     from faceanim.face.frame import face_frame
     from faceanim.face.landmarks import SLITS
     from faceanim.face.regions import slit_sides
-
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
 
     lm = np.asarray(lm478, dtype=np.float64)
     lower = slit_sides(mesh, lm)
@@ -81,10 +82,9 @@ def _sides(mesh, lm478: np.ndarray, skin: np.ndarray) -> tuple[np.ndarray, np.nd
     _, piece = connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)), directed=False)
     piece_y = np.bincount(piece, weights=y, minlength=piece.max() + 1) / np.bincount(piece, minlength=piece.max() + 1)
     below_mouth = piece_y[piece] < mouth_y
-    names = sorted(SLITS)
-    sides = np.zeros((mesh.n_vertices, len(names)), bool)
+    sides = np.zeros((mesh.n_vertices, len(SLIT_NAMES)), bool)
     near = np.zeros_like(sides)
-    for k, name in enumerate(names):
+    for k, name in enumerate(SLIT_NAMES):
         c = lm[list(SLITS[name]["corners"])]
         width = float(np.linalg.norm(c[1] - c[0]))
         sides[:, k] = np.where(skin, np.asarray(lower[name], dtype=bool), below_mouth & (name == "mouth"))
@@ -140,7 +140,8 @@ def correspondence(face: Face, head: GenericHead | None = None,
     # each target vertex's constraint: skin or not; below (1) / above (2) / free (0) per slit
     near = tgt_near | ~tgt_skin[:, None]  # what is not skin keeps to its side of the mouth always
     key = np.where(near, np.where(tgt_sides, 1, 2), 0)
-    key[~tgt_skin, 1:] = 0  # (the eyes' sides mean nothing off the skin)
+    eyes = [k for k, name in enumerate(SLIT_NAMES) if name != "mouth"]
+    key[np.ix_(~tgt_skin, eyes)] = 0  # (the eyes' sides mean nothing off the skin)
     key = np.column_stack([tgt_skin, key])
     uniq, group = np.unique(key, axis=0, return_inverse=True)
     tri = np.empty(face.mesh.n_vertices, dtype=np.int64)
