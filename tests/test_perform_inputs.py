@@ -271,7 +271,7 @@ PERFORM_DB = [
     ("db_cuttail.npz", "not a readable .npz file"),
     ("db_empty.npz", "not a readable .npz file"),
     ("db_text.npz", "not a readable .npz file"),
-    ("db_pickled.npz", "not a readable .npz file"),
+    ("db_pickled.npz", "is damaged"),
     ("blank.mp4", "not a readable .npz file"),
     ("db_folder.npz", "is a folder"),
     ("none.npz", "does not exist"),
@@ -504,7 +504,9 @@ def real(tmp_path_factory):
     for name, cut in [("cut100", 100), ("cut_half", len(raw) // 2), ("cut_tail", len(raw) - 10)]:
         (d / f"db_{name}.npz").write_bytes(raw[:cut])
     db = dict(np.load(d / "db.npz"))
-    np.savez(d / "db_short_takes.npz", **{**db, "take_starts": np.arange(0, len(db["controls"]), 2)})
+    starts = np.arange(0, len(db["controls"]), 2)
+    np.savez(d / "db_short_takes.npz", **{**db, "take_starts": starts,
+                                          "take_names": np.array([f"t{k}" for k in range(len(starts))])})
     return d
 
 
@@ -524,7 +526,7 @@ def test_real_clip_with_bad_settings(real, at, capsys):
             "outside the video's 10 frames", capsys, real, at)
     # every take of the database shorter than the window (2 frames each)
     refused(["perform", video, "--db", real / "db_short_takes.npz", "--window", "5", "--overlap", "2", "--quiet",
-             "-o", at / "o.csv"], "no take is 5 frames long", capsys, real, at)
+             "-o", at / "o.csv"], "takes are at most 2 frames long", capsys, real, at)
 
 
 @needs_data
@@ -544,3 +546,90 @@ def test_smallest_settings_run(real, at):
     assert len(rows) == 1 + 10
     assert run(["perform", real / "face1.mp4", "--quiet", "-o", at / "one.csv"]) == 0
     assert len((at / "one.csv").read_text().splitlines()) == 2
+
+
+# ------------------------------------------------------------------------------------ found by the sweep
+@pytest.fixture(scope="module")
+def more(tmp_path_factory) -> Path:
+    """Damaged databases with values out of range, takes with absurd numbers or gaps, a picture
+    named as a video, a truncated video (made by faceanim's writer, index at the front)."""
+    from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
+    from faceanim.render.video import write_video
+
+    d = tmp_path_factory.mktemp("more")
+    with resources.as_file(resources.files("faceanim").joinpath("assets", "motion_default.npz")) as p:
+        db = dict(np.load(p))
+    for name, change in [("fps_huge", {"fps": np.array(1e300)}), ("fps_inf", {"fps": np.array(np.inf)}),
+                         ("fps_tiny", {"fps": np.array(1e-300)}),
+                         ("weights_huge", {"weights": db["weights"] * np.float32(1e30)}),
+                         ("curves_huge", {"basis_curves": db["basis_curves"] * 1e300}),
+                         ("controls_huge", {"controls": db["controls"] * 1e300}),
+                         ("starts_negative", {"take_starts": np.array([-50])}),
+                         ("starts_beyond", {"take_starts": np.array([0, 10**12]), "take_names": np.array(["a", "b"])}),
+                         ("curves_repeated", {"curve_names": np.array([db["curve_names"][0]] * len(db["curve_names"]))}),
+                         ("bases_scaled", {"bases": db["bases"] * 2.0})]:
+        np.savez(d / f"db_{name}.npz", **{**db, **change})
+    # a database whose header claims a (100M, 15) array: refused before anything is loaded
+    import io
+    import zipfile
+
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (10**8, 15)})
+    with zipfile.ZipFile(d / "db_claims_huge.npz", "w") as z:
+        for key, value in db.items():
+            if key != "controls":
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, value)
+                z.writestr(f"{key}.npy", buf.getvalue())
+        z.writestr("controls.npy", np.lib.format.magic(1, 0) + header.getvalue()[8:] + b"\0" * 64)
+    rng = np.random.default_rng(1)
+    w, h = rng.uniform(0, 0.6, (30, len(ARKIT_NAMES))), rng.uniform(-0.1, 0.1, (30, 3))
+    write_arkit_csv(d / "take.csv", w, 30.0, h)
+    lines = _take_lines(d / "take.csv")
+    cols = lines[0].split(",")
+    (d / "jaw_huge.csv").write_text("\n".join([lines[0], _set_cell(lines[1], cols, "JawOpen", "1e300"), *lines[2:]]) + "\n")
+    (d / "yaw_huge.csv").write_text("\n".join([lines[0], *[_set_cell(r, cols, "HeadYaw", "1e300") for r in lines[1:]]]) + "\n")
+    gap = lines[1].split(",")
+    gap[0] = "01:00:00:00.000"
+    (d / "gap.csv").write_text("\n".join([lines[0], *lines[1:3], ",".join(gap)]) + "\n")
+    write_arkit_csv(d / "still.csv", np.zeros((30, len(ARKIT_NAMES))), 30.0)
+    # a truncated video and a picture named .mp4
+    noise = np.random.default_rng(0)  # (frames of noise: every frame takes its share of the file)
+    write_video(d / "whole.mp4", [noise.integers(0, 255, (64, 64, 3), dtype=np.uint8) for _ in range(30)], fps=30)
+    raw = (d / "whole.mp4").read_bytes()
+    (d / "half.mp4").write_bytes(raw[: len(raw) * 6 // 10])
+    with resources.as_file(resources.files("faceanim").joinpath("assets", "default_head.png")) as p:
+        (d / "picture.mp4").write_bytes(p.read_bytes())
+    return d
+
+
+DAMAGED = ["fps_huge", "fps_inf", "fps_tiny", "weights_huge", "curves_huge", "controls_huge", "starts_negative",
+           "starts_beyond", "curves_repeated", "bases_scaled", "claims_huge"]
+
+
+@pytest.mark.parametrize("name", DAMAGED)
+def test_perform_refuses_a_database_with_values_out_of_range(inp, more, at, capsys, name):
+    refused(["perform", inp / "blank.mp4", "--db", more / f"db_{name}.npz", "-o", at / "o.csv"], "is damaged",
+            capsys, more, at)
+
+
+@pytest.mark.parametrize("name,phrase", [("jaw_huge.csv", "outside -1 to 2"), ("yaw_huge.csv", "outside -360 to 360"),
+                                         ("gap.csv", "time jumps"), ("still.csv", "no facial motion")])
+def test_mocap_build_refuses_absurd_takes(more, at, capsys, name, phrase):
+    refused(["mocap", "build", more / name, "-o", at / "db.npz"], phrase, capsys, more, at)
+
+
+def test_truncated_video_and_picture_are_refused(more, at, capsys):
+    refused(["track", more / "half.mp4", "-o", at / "o.csv"], "ends after", capsys, more, at)
+    refused(["perform", more / "half.mp4", "-o", at / "o.csv"], "ends after", capsys, more, at)
+    refused(["perform", more / "picture.mp4", "-o", at / "o.csv"], "is a picture, not a video", capsys, more, at)
+
+
+def test_perform_refuses_a_face_for_csv_an_odd_size_and_shows_paths_on_one_line(inp, at, capsys):
+    refused(["perform", inp / "blank.mp4", "--face", inp / "text.obj", "-o", at / "o.csv"], "drop --face",
+            capsys, inp, at)
+    refused(["perform", inp / "blank.mp4", "--size", "65", "-o", at / "o.mp4"], "--size must be even",
+            capsys, inp, at)
+    for command in (["perform", inp / "blank.mp4"], ["track", inp / "blank.mp4"]):
+        err = refused([*command, "-o", at / "no\nsuch" / "o.csv"], "does not exist", capsys, inp, at)
+        assert "no?such" in err

@@ -65,6 +65,7 @@ class Performance:
     weights: np.ndarray
     pose: np.ndarray
     tracked: np.ndarray
+    settings: dict | None = None  # the window, K and overlap the synthesis used (None: raw)
 
     @property
     def n_frames(self) -> int:
@@ -143,8 +144,16 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
         scale = np.maximum(db.controls.std(axis=0), 1e-9)
         lo, hi = np.percentile(db.controls, [0.5, 99.5], axis=0)
         query, known = np.clip(controls, lo, hi) / scale, db.controls / scale
-        window = min(int(window), db.n_frames)
-        k = min(int(k), db.n_frames - window + 1)
+        bounds = np.r_[np.sort(np.unique(np.r_[0, db.take_starts])), db.n_frames]
+        lengths = np.diff(bounds)
+        if int(window) > lengths.max():
+            raise FaceAnimError(f"the motion database's takes are at most {lengths.max()} frames long; give a "
+                                f"window (W) of at most {lengths.max()} frames")
+        window = int(window)
+        if not 1 <= int(overlap) <= window:
+            raise FaceAnimError(f"the overlap must be 1 to {window} frames (the window), got {overlap}")
+        n_segments = int(np.sum(np.maximum(lengths - window + 1, 0)))
+        k = min(int(k), n_segments)  # a small database has fewer segments than K asks
 
         def synthesise(cols):
             synth = Synthesiser(known[:, cols], db.weights, window, k, 0.99, int(overlap), db.take_starts, search)
@@ -159,6 +168,8 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
             weights = lower @ p_low.T + upper @ p_up.T
         if resample:
             weights = np.stack([np.interp(t_video, t_db, w) for w in weights.T], axis=1)
+        return Performance(tracking.fps, weights, pose, tracking.tracked.copy(),
+                           {"window": window, "k": k, "overlap": int(overlap)})
     return Performance(tracking.fps, weights, pose, tracking.tracked.copy())
 
 

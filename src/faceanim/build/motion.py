@@ -326,6 +326,7 @@ def deformation_bases(markers: np.ndarray, rest: np.ndarray, energy: float = 0.9
 
 # ---------------------------------------------------------------------------------------- the database
 DATABASE_FORMAT = "faceanim motion database 2"
+MAX_ARRAY = 50_000_000  # elements of any one array in a database file (motion, the largest, is F x 228)
 
 
 @dataclass
@@ -415,6 +416,12 @@ def build_database(takes, fps: float = 30.0, head_motion: np.ndarray | None = No
     frames, starts, names, rotations, curves = [], [], [], [], []
     shape_names = None
     n = 0
+    from faceanim.limits import MAX_FRAMES
+
+    total = sum(int(np.floor(take.duration * fps + 1e-6)) + 1 for _, take in takes)
+    if total > MAX_FRAMES:
+        raise FaceAnimError(f"the takes make {total} frames at {fps:g} fps; give at most {MAX_FRAMES} "
+                            "(fewer or shorter takes, or a lower --fps)")
     for name, take in takes:
         r = take.resample(fps)
         shape_names, c = r.ict_curves()
@@ -429,6 +436,9 @@ def build_database(takes, fps: float = 30.0, head_motion: np.ndarray | None = No
         starts.append(n)
         names.append(str(name))
         n += r.n_samples
+    if np.ptp(np.concatenate(curves), axis=0).max() < 1e-6:
+        raise FaceAnimError("the takes have no facial motion (every curve is constant); give recordings of a "
+                            "moving face")
     x = np.concatenate(frames)
     applied = np.concatenate(rotations)
     if pose == "stable":
@@ -459,15 +469,36 @@ def load_database(path) -> MotionDatabase:
     from faceanim.errors import InputFileError, shown
     from faceanim.face.controls import CONTROL_NAMES
     from faceanim.io.files import check_input_file
+    from faceanim.limits import MAX_FPS, MAX_FRAMES
 
     p = check_input_file(path, "motion database", "a database made by faceanim mocap build")
     name = shown(p, 80, tail=True)
+    damaged = InputFileError(f"motion database '{name}' is damaged (inconsistent arrays); rebuild it")
+    not_npz = InputFileError(f"motion database '{name}' is not a readable .npz file; build one with "
+                             "faceanim mocap build")
+    # the arrays' shapes from their headers, before anything is loaded (a header may claim more
+    # than memory holds)
+    try:
+        with zipfile.ZipFile(p) as z:
+            for info in z.infolist():
+                if not info.filename.endswith(".npy"):
+                    continue  # (not an array; np.load ignores it too)
+                with z.open(info) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                            else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read(fh)
+                if dtype.hasobject or int(np.prod(shape, dtype=np.float64)) > MAX_ARRAY:
+                    raise damaged
+    except InputFileError:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError, RuntimeError):
+        raise not_npz from None
     try:
         with np.load(p, allow_pickle=False) as d:
             data = {k: d[k] for k in d.files}
     except (OSError, ValueError, zipfile.BadZipFile, EOFError):
-        raise InputFileError(f"motion database '{name}' is not a readable .npz file; build one with "
-                             "faceanim mocap build") from None
+        raise not_npz from None
     need = ("format", "fps", "control_names", "marker_vertices", "rest", "motion", "controls", "raw", "neutral",
             "take_starts", "take_names", "rotation_error", "bases", "weights", "curve_names", "basis_curves")
     fmt = str(data["format"]) if "format" in data and data["format"].dtype.kind == "U" else ""
@@ -482,26 +513,38 @@ def load_database(path) -> MotionDatabase:
                              "this faceanim (faceanim mocap build)")
     from faceanim.face.generic_head import generic_head
 
+    def within(key, bound):
+        a = data[key]
+        return a.dtype.kind in "fiu" and bool(np.all(np.isfinite(a))) and float(np.abs(a).max(initial=0.0)) <= bound
+
     try:
         f, p_count = data["controls"].shape[0], len(data["marker_vertices"])
         n_l, n_c = data["bases"].shape[0], len(data["curve_names"])
-        ok = (data["controls"].shape == (f, 15) and data["raw"].shape == (f, 15)
-              and data["motion"].shape == (f, p_count, 3) and data["rest"].shape == (p_count, 3)
-              and data["rotation_error"].shape == (f,) and f >= 1 and 0 <= int(data["neutral"]) < f
+        starts = data["take_starts"]
+        ok = (data["controls"].shape == (f, 15) and data["raw"].shape == (f, 15) and 1 <= f <= MAX_FRAMES
+              and data["motion"].shape == (f, p_count, 3) and data["rest"].shape == (p_count, 3) and p_count >= 4
+              and data["rotation_error"].shape == (f,) and 0 <= int(data["neutral"]) < f
               and data["bases"].shape == (n_l, p_count, 3) and 1 <= n_l <= 3 * p_count
-              and data["weights"].shape == (f, n_l) and data["basis_curves"].shape == (n_l, n_c)
+              and data["weights"].shape == (f, n_l) and data["basis_curves"].shape == (n_l, n_c) and n_c >= 1
               and data["marker_vertices"].dtype.kind in "iu" and data["curve_names"].dtype.kind == "U"
-              and data["take_starts"].dtype.kind in "iu" and data["take_names"].dtype.kind == "U"
-              and all(np.all(np.isfinite(data[k])) for k in ("controls", "raw", "motion", "rest", "bases", "weights",
-                                                              "basis_curves"))
-              and float(data["fps"]) > 0)
+              and starts.dtype.kind in "iu" and starts.ndim == 1 and len(starts) >= 1 and int(starts[0]) == 0
+              and bool(np.all(np.diff(starts) > 0)) and int(starts[-1]) < f
+              and data["take_names"].dtype.kind == "U" and data["take_names"].shape == starts.shape
+              and data["fps"].shape == () and np.isfinite(float(data["fps"])) and 1.0 <= float(data["fps"]) <= MAX_FPS
+              and within("controls", 1e4) and within("raw", 1e4) and within("rest", 10.0) and within("motion", 1.0)
+              and within("bases", 1.0 + 1e-6) and within("weights", 1e3) and within("basis_curves", 1e6)
+              and len(set(data["curve_names"].tolist())) == n_c
+              and len(set(data["marker_vertices"].tolist())) == p_count)
+        if ok:
+            b = data["bases"].reshape(n_l, -1).astype(np.float64)
+            ok = bool(np.allclose(b @ b.T, np.eye(n_l), atol=1e-4))  # orthonormal, as built
         head = generic_head()
         ok = ok and bool(np.all((data["marker_vertices"] >= 0) & (data["marker_vertices"] < head.mesh.n_vertices)))
-        ok = ok and set(str(c) for c in data["curve_names"]) <= set(head.shape_names)
-    except (TypeError, ValueError, IndexError):
+        ok = ok and {str(c) for c in data["curve_names"]} <= set(head.shape_names)
+    except (TypeError, ValueError, IndexError, OverflowError):
         ok = False
     if not ok:
-        raise InputFileError(f"motion database '{name}' is damaged (inconsistent arrays); rebuild it")
+        raise damaged
     rest = data["rest"].astype(np.float64)
     return MotionDatabase(float(data["fps"]), tuple(CONTROL_NAMES), data["marker_vertices"].astype(np.int64),
                           rest, rest + data["motion"].astype(np.float64),

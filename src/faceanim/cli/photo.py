@@ -15,6 +15,7 @@ from faceanim.cli.common import (
     named_paths,
     report,
 )
+from faceanim.errors import shown
 
 # a textured head: glTF and OBJ carry the texture atlas (PLY has no place for it)
 SUFFIXES = [".glb", ".obj", ".png"]
@@ -34,7 +35,7 @@ def _cmd_photo(args) -> None:
     check_outputs(args.output)
     inputs = [Path(p).resolve() for p in [args.front, *(args.side or []), args.points] if p]
     if out.resolve() in inputs:
-        raise CommandError(f"the output '{out}' is also an input; give the output its own path")
+        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
     ph = head_from_photos(args.front, args.side or [], args.points, method=args.method,
                           keep_expression=args.keep_expression, texture_size=args.texture_size)
     suffix = out.suffix.lower()

@@ -16,7 +16,24 @@ from faceanim.cli.common import (
     progress,
     report,
 )
+from faceanim.errors import shown
 from faceanim.limits import MAX_FRAMES
+
+
+def _even(name: str, low: int, high: int):
+    """An argparse type: a whole, even number in [low, high] (H.264 needs even frame sizes)."""
+    import argparse
+
+    base = _arg_type(name, low, high, integer=True)
+
+    def parse(text: str) -> int:
+        value = base(text)
+        if value % 2:
+            raise argparse.ArgumentTypeError(f"{name} must be even (video needs even sizes), got {value}")
+        return value
+
+    parse.__name__ = name.lstrip("-")
+    return parse
 
 
 def _camera_frames(index: int, n_frames: int):
@@ -54,7 +71,7 @@ def _cmd_track(args) -> None:
         raise CommandError("give a video file or --camera N (one of them)")
     out = Path(args.output)
     if args.video is not None and out.resolve() == Path(args.video).resolve():
-        raise CommandError(f"the output '{out}' is the input video; give the output its own path")
+        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is the input video; give the output its own path")
     check_outputs(args.output)
     if args.video is not None:
         info = video_info(args.video)
@@ -78,7 +95,7 @@ def _cmd_mocap_build(args) -> None:
     out = Path(args.output)
     inputs = [Path(p).resolve() for p in [*args.takes, args.head_motion] if p]
     if out.resolve() in inputs:
-        raise CommandError(f"the output '{out}' is also an input; give the output its own path")
+        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
     check_outputs(args.output)
     takes = [(Path(p).stem, read_arkit_csv(p)) for p in args.takes]
     motion = None
@@ -127,13 +144,21 @@ def _cmd_perform(args) -> None:
     out = Path(args.output)
     inputs = [Path(p).resolve() for p in (args.video, args.db, args.face, args.landmarks) if p]
     if out.resolve() in inputs:
-        raise CommandError(f"the output '{out}' is also an input; give the output its own path")
+        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
     check_outputs(args.output)
     if args.overlap > args.window:
         raise CommandError(f"--overlap ({args.overlap}) cannot exceed --window ({args.window})")
-    info = video_info(args.video)
-    db = load_database(args.db) if args.db else default_database()
     suffix = out.suffix.lower()
+    if suffix == ".csv" and (args.face or args.landmarks):
+        raise CommandError("a .csv output holds ARKit curves, not a face: drop --face/--landmarks, or write "
+                           ".glb or .mp4")
+    info = video_info(args.video)
+    if suffix == ".mp4":
+        from faceanim.limits import check_video
+
+        w, h = info.size
+        check_video(info.frames_expected, max(2, int(round(w * args.size / h / 2)) * 2) + args.size, args.size)
+    db = load_database(args.db) if args.db else default_database()
     face = rig = None
     if suffix != ".csv":
         face = load_face(args)
@@ -141,10 +166,13 @@ def _cmd_perform(args) -> None:
         tr = track_frames(video_frames(info), info.fps, args.neutral_frame, bar)
     perf = perform(tr, db, raw=args.raw, window=args.window, k=args.k, overlap=args.overlap,
                    whole_face=args.whole_face)
-    how = "mapped frame by frame (--raw)" if args.raw else (
-        f"filtered and synthesised {'on the whole face' if args.whole_face else 'feature-wise'} from "
-        f"{db.n_frames} database frames (W={min(args.window, db.n_frames)}, K={args.k}, "
-        f"delay {args.overlap - 1} frame{'s' if args.overlap != 2 else ''})")
+    if args.raw:
+        how = "mapped frame by frame (--raw)"
+    else:
+        used = perf.settings
+        how = (f"filtered and synthesised {'on the whole face' if args.whole_face else 'feature-wise'} from "
+               f"{db.n_frames} database frames (W={used['window']}, K={used['k']}, "
+               f"delay {used['overlap'] - 1} frame{'' if used['overlap'] == 2 else 's'})")
     if suffix == ".csv":
         from faceanim.io.arkit_csv import write_arkit_csv
         from faceanim.perform import arkit_curves
@@ -247,8 +275,8 @@ def register(sub) -> None:
                    help="segments blended per frame (the delay is overlap - 1 frames; the paper: 5)")
     p.add_argument("--neutral-frame", type=_arg_type("--neutral-frame", 0, MAX_FRAMES, integer=True), metavar="N",
                    help="the frame with the performer's neutral face (default: found automatically)")
-    p.add_argument("--size", type=_arg_type("--size", 64, 1024, integer=True), default=512,
-                   help="MP4 height in pixels")
+    p.add_argument("--size", type=_even("--size", 64, 1024), default=512,
+                   help="MP4 height in pixels (even)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     add_output(p, [".glb", ".mp4", ".csv"])
     p.set_defaults(func=_cmd_perform)

@@ -41,6 +41,9 @@ HEAD_NAMES = ("HeadYaw", "HeadPitch", "HeadRoll")
 EYE_NAMES = ("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw", "RightEyePitch", "RightEyeRoll")
 TIMECODE_RATE = 60.0  # the app's timecode frames per second
 MAX_BYTES = 512 * 2**20  # a take of this size is hours long: refuse before reading
+MAX_GAP = 10.0  # seconds between two samples: more is two recordings in one file
+WEIGHT_RANGE = (-1.0, 2.0)  # blendshape weights beyond these are not a face's (within, clamped to [0, 1])
+MAX_ANGLE = 360.0  # |head or eye angle| (radians by ARKit's convention; degrees would stay within too)
 TIMECODE = re.compile(r"^(\d{1,2}):(\d{2}):(\d{2}):(\d{1,3}(?:\.\d+)?)$")
 PATH_SHOWN = 80
 
@@ -154,6 +157,14 @@ def read_arkit_csv(path: str | os.PathLike) -> ArkitTake:
                     raise InputFileError(f"{where}: column {shown(bad)} is not a number") from None
                 if not np.all(np.isfinite(v)):
                     raise InputFileError(f"{where}: NaN or infinite value")
+                nb = len(ARKIT_NAMES)
+                lo, hi = WEIGHT_RANGE
+                bad = next((i for i in range(len(v)) if (not lo <= v[i] <= hi if i < nb else abs(v[i]) > MAX_ANGLE)),
+                           None)
+                if bad is not None:
+                    column = header[numeric[bad]]
+                    limit = f"{lo:g} to {hi:g}" if bad < nb else f"-{MAX_ANGLE:g} to {MAX_ANGLE:g}"
+                    raise InputFileError(f"{where}: column {shown(column)} is {v[bad]:.3g}, outside {limit}")
                 values.append(v)
     except UnicodeDecodeError:
         raise InputFileError(f"ARKit take '{name}' is not text (UTF-8); give a Live Link Face CSV") from None
@@ -166,6 +177,10 @@ def read_arkit_csv(path: str | os.PathLike) -> ArkitTake:
     if np.any(np.diff(t) < 0):
         k = int(np.flatnonzero(np.diff(t) < 0)[0])
         raise InputFileError(f"ARKit take '{name}': time goes backwards after sample {k + 1}; is it two takes?")
+    if np.any(np.diff(t) > MAX_GAP):
+        k = int(np.flatnonzero(np.diff(t) > MAX_GAP)[0])
+        raise InputFileError(f"ARKit take '{name}': time jumps {np.diff(t)[k]:.0f} s after sample {k + 1}; is it "
+                             "two takes? (split it)")
     # repeated timecodes (the app writes its first sample twice): keep the first
     keep = np.r_[True, np.diff(t) > 0]
     v = np.array(values)[keep]

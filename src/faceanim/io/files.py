@@ -63,51 +63,54 @@ def check_output_path(path: str | os.PathLike, what: str = "output") -> Path:
     """
     if path is None or str(path) == "":
         raise OutputError(f"no {what} path given; name the file to write")
+    from faceanim.errors import shown
+
     p = Path(path)
     parent = p.parent if str(p.parent) else Path(".")
+    sp, sparent = shown(p, 120, tail=True), shown(parent, 120, tail=True)  # printable, one line
     if p.name in ("", ".", ".."):
-        raise OutputError(f"{what} '{p}' is a folder; give a file name inside it")
+        raise OutputError(f"{what} '{sp}' is a folder; give a file name inside it")
     try:
         st = os.stat(parent)
     except FileNotFoundError:
-        raise OutputError(f"cannot write {what} '{p}': folder '{parent}' does not exist; create it first "
-                          f"(mkdir -p '{parent}')") from None
+        raise OutputError(f"cannot write {what} '{sp}': folder '{sparent}' does not exist; create it first "
+                          f"(mkdir -p '{sparent}')") from None
     except NotADirectoryError:
-        raise OutputError(f"cannot write {what} '{p}': '{parent}' is not a folder; choose another path") from None
+        raise OutputError(f"cannot write {what} '{sp}': '{sparent}' is not a folder; choose another path") from None
     except OSError as exc:
-        raise OutputError(f"cannot write {what} '{p}': folder '{parent}': {_reason(exc)}") from None
+        raise OutputError(f"cannot write {what} '{sp}': folder '{sparent}': {_reason(exc)}") from None
     if not stat.S_ISDIR(st.st_mode):
-        raise OutputError(f"cannot write {what} '{p}': '{parent}' is not a folder; choose another path")
+        raise OutputError(f"cannot write {what} '{sp}': '{sparent}' is not a folder; choose another path")
     try:
         lst = os.lstat(p)
     except FileNotFoundError:
         lst = None
     except OSError as exc:
-        raise OutputError(f"cannot write {what} '{p}': {_reason(exc)}; choose another path") from None
+        raise OutputError(f"cannot write {what} '{sp}': {_reason(exc)}; choose another path") from None
     if lst is not None:
         try:
             target = os.stat(p)
         except OSError:
             target = lst  # a dangling symlink: replacing it writes a new file
         if stat.S_ISDIR(target.st_mode):
-            raise OutputError(f"{what} '{p}' is a folder; give a file name (e.g. '{p / ('out' + p.suffix)}')")
+            raise OutputError(f"{what} '{sp}' is a folder; give a file name (e.g. '{shown(p / ('out' + p.suffix), 120, tail=True)}')")
         if not stat.S_ISREG(target.st_mode):
-            raise OutputError(f"{what} '{p}' exists and is not a regular file (a device, pipe or socket); "
+            raise OutputError(f"{what} '{sp}' exists and is not a regular file (a device, pipe or socket); "
                               "choose another path")
         if not os.access(p, os.W_OK):
-            raise OutputError(f"{what} '{p}' exists and is read-only; remove it or choose another path")
+            raise OutputError(f"{what} '{sp}' exists and is read-only; remove it or choose another path")
         euid = os.geteuid() if hasattr(os, "geteuid") else None
         if (euid not in (None, 0) and st.st_mode & stat.S_ISVTX and lst.st_uid != euid
                 and st.st_uid != euid):
-            raise OutputError(f"{what} '{p}' belongs to another user in a shared folder and cannot be "
+            raise OutputError(f"{what} '{sp}' belongs to another user in a shared folder and cannot be "
                               "replaced; choose another path")
     if len(p.name.encode("utf-8", "surrogateescape")) > 255:
-        raise OutputError(f"cannot write {what} '{p}': the file name is longer than 255 bytes; use a shorter name")
+        raise OutputError(f"cannot write {what} '{sp}': the file name is longer than 255 bytes; use a shorter name")
     # the only sure test of a writable folder (read-only mounts, ACLs, root on /sys): try it
     try:
         fd, probe = tempfile.mkstemp(prefix=f".probe{_TEMP_MARK}{os.getpid()}-", suffix=".tmp", dir=parent)
     except OSError as exc:
-        raise OutputError(f"cannot write {what} '{p}': folder '{parent}' is not writable ({_reason(exc)}); "
+        raise OutputError(f"cannot write {what} '{sp}': folder '{sparent}' is not writable ({_reason(exc)}); "
                           "choose another folder") from None
     os.close(fd)
     with contextlib.suppress(OSError):

@@ -63,6 +63,11 @@ def video_info(path: str | os.PathLike) -> VideoInfo:
     p = check_input_file(path, "video", "a video file")
     if p.stat().st_size == 0:
         raise InputFileError(f"video '{_name(p)}' is empty; give a video file")
+    with open(p, "rb") as fh:
+        head = fh.read(8)
+    if head.startswith((b"\x89PNG", b"\xff\xd8\xff", b"BM", b"GIF8", b"II*\x00", b"MM\x00*")):
+        raise InputFileError(f"'{_name(p)}' is a picture, not a video; give a video file (MP4, MOV, MKV, AVI, "
+                             "WebM)")
     gen, meta = _reader(p)
     gen.close()
     fps = float(meta.get("fps") or 0.0)
@@ -82,20 +87,26 @@ def video_info(path: str | os.PathLike) -> VideoInfo:
 
 def video_frames(info: VideoInfo) -> Iterator[np.ndarray]:
     """The frames of a checked video, in order, as (H, W, 3) uint8 arrays. Stops after
-    ``MAX_FRAMES``; a file truncated after its first frame simply ends early."""
+    ``MAX_FRAMES``. A file that ends well before the frames its container announces (truncated or
+    damaged: fewer than all but 2% of them, or 2) raises :class:`InputFileError` once its last
+    readable frame has been given (containers' durations are estimates: a frame short is normal)."""
     gen, _ = _reader(info.path)
     w, h = info.size
     n = 0
     try:
         for buf in gen:
             if n >= MAX_FRAMES:
-                break
+                return
             frame = np.frombuffer(buf, dtype=np.uint8)
             if frame.size != w * h * 3:
                 break
             yield frame.reshape(h, w, 3)
             n += 1
     except (RuntimeError, OSError):
-        return  # ffmpeg stopped on a damaged tail: the frames so far stand
+        pass  # ffmpeg stopped on a damaged tail
     finally:
         gen.close()
+    expected = info.frames_expected
+    if n < expected - max(2, int(0.02 * expected)):
+        raise InputFileError(f"video '{_name(info.path)}' ends after {n} of the {expected} frames it announces "
+                             "(truncated or damaged); give the whole file or re-export it")

@@ -24,7 +24,6 @@ signal), from scipy's k-d tree, or by brute force (``search=``).
 
 from __future__ import annotations
 
-import heapq
 from dataclasses import dataclass
 
 import numpy as np
