@@ -116,7 +116,7 @@ class NeighbourhoodGraph:
         if not len(idx):
             return idx
         lo, hi = self.starts[idx], self.starts[idx + 1]
-        take = np.repeat(hi - lo, 1)
+        take = hi - lo
         rows = np.repeat(lo, take) + (np.arange(take.sum()) - np.repeat(np.cumsum(take) - take, take))
         return self.links[rows]
 
