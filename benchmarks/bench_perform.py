@@ -10,14 +10,14 @@ Video: ``talking-head-videos/d3.mp4`` (354 frames, 512 x 512). Target: the ICT h
 1. Per frame, streaming (each stage timed over the whole clip, per frame): decoding, tracking
    (MediaPipe face mesh + pose + 15 controls), filtering and synthesis as ``perform`` does it
    (feature-wise: two segment queries per frame, W = 5, K = 30 nearest by k-d tree, graph or
-   brute force, local PCA, blend), and retargeting (the L basis
-   weights blended into all vertices: one (V, 3L) x (3L,) product). End to end = the sum
+   brute force, local PCA, blend), and retargeting (the 2L basis weights, lower and upper
+   face, blended into all vertices: one sparse (3V, 2L) x (2L,) product). End to end = the sum
    (rendering excluded); frames per second = 1 / that.
 2. Retargeting at run time, single frame and 100-frame batch, warm:
    - baseline: per-vertex transfer at run time (expression cloning as the paper describes it):
-     the frame's motion on the source head (its shapes weighted), interpolated at each target
-     vertex's corresponding point and turned by that vertex's Jacobian (all precomputed: only
-     the per-frame work is timed);
+     the frame's motion on the source head (its shapes weighted, lower and upper face), interpolated
+     at each target vertex's corresponding point and turned by that vertex's Jacobian (all
+     precomputed: only the per-frame work is timed);
    - faceanim: the precomputed target bases blended (eq. 7), the rig's ``LinearDeformer``.
    Plus the bind (cold, once per face and database), and the retained and peak memory of it.
 
@@ -35,8 +35,8 @@ from faceanim.drivers.video.tracking import track_frames
 from faceanim.face.face import Face
 from faceanim.face.generic_head import generic_head
 from faceanim.io.video import video_frames, video_info
-from faceanim.perform import default_database, perform
-from faceanim.rig.performance import correspondence, jacobians, retarget, source_bases
+from faceanim.perform import default_database, face_regions, perform, performance_rig
+from faceanim.rig.performance import correspondence, jacobians
 
 
 def main() -> None:
@@ -58,7 +58,7 @@ def main() -> None:
     t_track = (time.perf_counter() - t0) / len(frames)
 
     t0 = time.perf_counter()
-    rig, retained, peak = traced(lambda: retarget(face, db.basis_curves, db.curve_names))
+    rig, retained, peak = traced(lambda: performance_rig(face, db))
     t_bind = time.perf_counter() - t0
 
     synth = {}
@@ -81,7 +81,7 @@ def main() -> None:
 
     # 2. run-time retargeting: per-vertex transfer vs blended bases
     head = generic_head()
-    src = source_bases(db.basis_curves, db.curve_names)
+    regions = face_regions()
     tri, bary = correspondence(face, head)
     corners = head.mesh.faces[tri]
     x_s = np.einsum("vc,vcd->vd", bary, head.mesh.vertices[corners])
@@ -93,8 +93,11 @@ def main() -> None:
     curves = db.basis_curves
     shapes = np.stack([head.shape(n) for n in db.curve_names])  # (C, Vs, 3)
 
-    def per_vertex(w):  # the frame's source motion, carried vertex by vertex
-        motion = np.einsum("fc,cvd->fvd", w @ curves, shapes)
+    n_l = db.n_bases
+
+    def per_vertex(w):  # the frame's source motion (lower and upper face), carried vertex by vertex
+        motion = (np.einsum("fc,cvd->fvd", w[:, :n_l] @ curves, shapes) * regions["lower"][None, :, None]
+                  + np.einsum("fc,cvd->fvd", w[:, n_l:] @ curves, shapes) * regions["upper"][None, :, None])
         at = np.einsum("vc,fvcd->fvd", bary, motion[:, corners])
         return face.mesh.vertices + np.einsum("vij,fvj->fvi", jac, at)
 

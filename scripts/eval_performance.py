@@ -32,13 +32,15 @@ Columns (one row per video and method, then the mean over the videos per method)
 - ``r signed@0``: as ``r@0`` with the avatar's opening signed (landmark 13 minus 14 along the
   face's up axis): a distance cannot tell a crossed mouth (lower lip pushed through the upper)
   from an open one.
+- below the table, the head rotation's own motion at rest, as tracked and smoothed (the table's
+  jitter is the expression's).
 - ``r eyes``, ``r brows``: the same correlation (lag 0, mean of left and right) for the lids'
   opening (landmarks 159-145, 386-374 along the up axis, against the tracked raw ``eye_open``) and
   the brows' height over the eyes (105-159, 334-386, against ``brow_raise``).
 
 Also writes the table to ``--out`` (default /tmp/eval_performance.md) and, with ``--sheet``, a
 contact sheet: for the two clips whose mouth moves most, four frames spread over the clip, each
-video frame beside the avatar (paper's method, with the tracked head rotation).
+video frame beside the avatar (``faceanim perform``'s default, with the smoothed head rotation).
 
 Usage (from /work/main):
 ``python scripts/eval_performance.py ../shared/data/talking-head-videos [--sheet docs/performance_sheet.png]``
@@ -57,6 +59,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
+from faceanim.drivers.video.filters import one_euro
 from faceanim.drivers.video.tracking import track_video
 from faceanim.face.controls import CONTROL_NAMES
 from faceanim.face.face import Face
@@ -66,7 +69,7 @@ from faceanim.perform import default_database, hold_untracked, perform, performa
 MOUTH = CONTROL_NAMES.index("mouth_open")
 STILL_FRACTION, STILL_WINDOW = 0.2, 10
 MAX_LAG = 10
-MIN_CUTOFF, BETA, D_CUTOFF = 1.0, 0.007, 1.0  # One-Euro, the paper's standard values
+BETA = 0.007  # One-Euro's standard parameters (min_cutoff 1 Hz, d_cutoff 1 Hz)
 BETA_TUNED = 0.5  # per database standard deviation per second: speech (mouth_open changing at ~2-10
 # sd/s) lifts the cutoff to ~2-6 Hz, rest stays at 1 Hz
 UPPER_LIP, LOWER_LIP = 13, 14
@@ -75,30 +78,6 @@ METHODS = ("raw", "one-euro", "one-euro tuned", "paper", "faceanim", "faceanim W
 # (upper, lower) landmark pairs measured along the face's up axis, and the tracked control
 UPPER_PAIRS = {"eyes": (((159, 145), "eye_open_R"), ((386, 374), "eye_open_L")),
                "brows": (((105, 159), "brow_raise_R"), ((334, 386), "brow_raise_L"))}
-
-
-def one_euro(x: np.ndarray, fps: float, min_cutoff: float = MIN_CUTOFF, beta: float = BETA,
-             d_cutoff: float = D_CUTOFF) -> np.ndarray:
-    """(F, n) signal ``x`` (finite) filtered by the One-Euro filter, each column on its own:
-    a first-order low-pass whose cutoff ``min_cutoff + beta |dx/dt|`` rises with the speed (the
-    speed itself low-passed at ``d_cutoff``). Causal, no look-ahead."""
-
-    def alpha(cutoff):
-        tau = 1.0 / (2 * np.pi * cutoff)
-        return 1.0 / (1.0 + tau * fps)
-
-    x = np.asarray(x, dtype=np.float64)
-    out = np.empty_like(x)
-    out[0] = prev = x[0]
-    dprev = np.zeros(x.shape[1])
-    a_d = alpha(d_cutoff)
-    for t in range(1, len(x)):
-        dx = (x[t] - prev) * fps
-        dprev = dprev + a_d * (dx - dprev)
-        a = alpha(min_cutoff + beta * np.abs(dprev))
-        prev = prev + a * (x[t] - prev)
-        out[t] = prev
-    return out
 
 
 def still_frames(tracking) -> np.ndarray:
@@ -163,7 +142,7 @@ def lagged_corr(avatar: np.ndarray, video: np.ndarray, ok: np.ndarray, lag: int)
 
 
 def performances(tracking, db) -> dict:
-    """The avatar's basis weights (F, L) per method."""
+    """The avatar's weights (F, 2L: lower and upper face) per method."""
     held = hold_untracked(tracking.controls, tracking.tracked)
     sd = db.controls.std(axis=0)
     sd = np.where(sd > 0, sd, 1.0)
@@ -181,16 +160,31 @@ def fmt(x, spec=".2f") -> str:
     return "n/a" if x is None or not np.isfinite(x) else format(x, spec)
 
 
+def head_jitter(tracking, face, still: np.ndarray) -> tuple[float, float]:
+    """Mean frame-to-frame motion (m) of the face-region vertices from the head's rotation alone,
+    over the still frames: tracked as is, and smoothed as ``perform`` does (One-Euro)."""
+    from faceanim.perform import head_pivot
+
+    region = face.mesh.vertices[face.face_region] - head_pivot(face)
+    out = []
+    for smooth in (False, True):
+        perf = perform(tracking, raw=True, smooth_head=smooth)
+        rot = perf.rotations(face.frame.rotation)
+        step = np.linalg.norm(np.einsum("fij,vj->fvi", np.diff(rot, axis=0), region), axis=2).mean(axis=1)
+        out.append(float(np.mean(step[still - 1])) if len(still) else float("nan"))
+    return out[0], out[1]
+
+
 def contact_sheet(path: Path, chosen, face, rig, db) -> None:
+    """Four frames of each chosen clip, each beside the face under faceanim perform's default."""
     import cv2
 
     from faceanim.io.video import video_frames, video_info
-    from faceanim.perform import frames_of, head_pivot
+    from faceanim.perform import performance_frames
     from faceanim.render.gl import OffscreenRenderer
     from faceanim.render.video import save_png
 
     size = 256
-    pivot = head_pivot(face)
     rows = []
     with OffscreenRenderer(face.mesh, size=(size, size), **face.view(yaw=0.0, pitch=0.0)) as renderer:
         for video, tracking in chosen:
@@ -198,7 +192,7 @@ def contact_sheet(path: Path, chosen, face, rig, db) -> None:
             picks = [int((2 * k + 1) * n / 8) for k in range(4)]
             perf = perform(tracking, db)  # faceanim perform's default
             verts = {}
-            for t, v in enumerate(frames_of(perf, rig, pivot)):
+            for t, v in enumerate(performance_frames(perf, rig, face)):
                 if t in picks:
                     verts[t] = v
             frames = {}
@@ -246,12 +240,14 @@ def main(argv=None) -> None:
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
     per_method = {m: [] for m in METHODS}
     tracked_videos = []
+    heads = []  # (raw, smoothed) head-rotation jitter at rest per video
     for video in sorted(args.videos.glob("*.mp4")):
         tracking = track_video(video)
         tracked_videos.append((video, tracking))
         ok = tracking.tracked
         mouth_video = tracking.raw[:, MOUTH]
         still = still_frames(tracking)
+        heads.append(head_jitter(tracking, face, still))
         for method, weights in performances(tracking, db).items():
             step, dist, signed, gaps = avatar_measures(weights, rig, region, up)
             upper = {group: float(np.nanmean([lagged_corr(gaps[pair], tracking.raw[:, CONTROL_NAMES.index(c)], ok, 0)
@@ -284,7 +280,11 @@ def main(argv=None) -> None:
               "lag: only meaningful where r@lag is high (with r near 0 the peak is noise, often at +-10). "
               "Synthesis looks ahead: frame t is final once frame t + overlap - 1 is seen (4 frames for paper and "
               "faceanim W20, 1 for faceanim), a latency that does not show as lag in an offline run; One-Euro is "
-              "causal, so its latency is its lag.")]
+              "causal, so its latency is its lag."),
+              "", (f"Head rotation at rest (face-region vertices, the same for every method): "
+                   f"{1e3 * np.mean([h[0] for h in heads]):.3f} mm/frame as tracked, "
+                   f"{1e3 * np.mean([h[1] for h in heads]):.3f} smoothed by perform's One-Euro filter "
+                   "(mean over the videos).")]
     table = "\n".join(lines)
     print("\n" + table)
     args.out.write_text(table + "\n")

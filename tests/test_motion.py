@@ -174,8 +174,10 @@ def test_control_parameters_of_the_markers_follow_the_recorded_curves():
     head, m, take, _, x = _turned_take()
     rest = head.mesh.vertices[m]
     r, t, _ = stable_registration(x, rest)
-    _, z, neutral = marker_controls(np.einsum("fji,fpj->fpi", r, x - t[:, None]), rest)
-    assert np.abs(z[neutral]).max() < 1e-12 and z.shape == (take.n_samples, 15)
+    _, z, neutral = marker_controls(np.einsum("fji,fpj->fpi", r, x - t[:, None]))
+    # measured from the typical face: the brows' and eyes' medians are 0, the closed mouth's too
+    assert z.shape == (take.n_samples, 15) and 0 <= neutral < take.n_samples
+    assert np.abs(np.median(z[:, [CONTROL_NAMES.index(n) for n in ("eye_open_L", "brow_raise_L")]], axis=0)).max() < 1e-9
 
     def explained(control, arkit):  # R^2 of a linear fit of the control to those curves
         a = z[:, CONTROL_NAMES.index(control)]

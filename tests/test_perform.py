@@ -118,9 +118,12 @@ def test_synthesis_driven_by_the_database_own_controls_gives_its_motion_back(db)
     a, b = 1000, 1300
     n = b - a
     tr = Tracking(30.0, np.ones(n, bool), np.zeros((n, 6)), np.zeros((n, 19, 2)), db.raw[a:b], db.controls[a:b], 0)
-    synth = perform(tr, db)
+    synth = perform(tr, db, whole_face=True, window=20, overlap=5)
     direct = perform(tr, db, raw=True)
     truth = db.weights[a:b]
+    n_l = db.n_bases
+    np.testing.assert_array_equal(synth.weights[:, :n_l], synth.weights[:, n_l:])  # one search: both halves
+    synth.weights, direct.weights = synth.weights[:, :n_l], direct.weights[:, :n_l]
     scale = np.linalg.norm(truth, axis=1).mean()
     e_synth = np.linalg.norm(synth.weights - truth, axis=1).mean()
     e_direct = np.linalg.norm(direct.weights - truth, axis=1).mean()
@@ -171,7 +174,7 @@ def test_perform_command_writes_glb_csv_and_mp4(tmp_path, db):
     assert run(["perform", video, "--quiet", "-o", glb]) == 0
     doc = glb_json(glb)
     targets = doc["meshes"][0]["extras"]["targetNames"]
-    assert targets == [f"basis_{k + 1:02d}" for k in range(db.n_bases)]
+    assert targets == [f"{r}_{k + 1:02d}" for r in ("lower", "upper") for k in range(db.n_bases)]
     anim = doc["animations"][0]
     assert [c["target"]["path"] for c in anim["channels"]] == ["weights", "rotation"]
     assert doc["accessors"][anim["samplers"][0]["input"]]["count"] == 78
@@ -185,7 +188,13 @@ def test_perform_command_writes_glb_csv_and_mp4(tmp_path, db):
     mouth = tr.raw[:, CONTROL_NAMES.index("mouth_open")]
     jaw = take.weights[:, ARKIT_NAMES.index("JawOpen")]
     assert np.corrcoef(mouth[tr.tracked], jaw[tr.tracked])[0, 1] > 0.5
-    np.testing.assert_allclose(np.degrees(take.head[:, 0]), tr.pose[:, 0], atol=1e-3)
+    from faceanim.perform import perform
+
+    smoothed = perform(tr, db).pose[:, 0]  # the tracked yaw, smoothed by the One-Euro filter
+    np.testing.assert_allclose(np.degrees(take.head[:, 0]), smoothed, atol=1e-3)
+    # close to the tracked yaw, with less frame-to-frame trembling
+    assert np.abs(smoothed - tr.pose[:, 0]).max() < 3.0
+    assert np.abs(np.diff(smoothed)).mean() < 0.5 * np.abs(np.diff(tr.pose[:, 0])).mean()
 
     assert run(["perform", video, "--quiet", "--size", "256", "-o", mp4]) == 0
     info = video_info(mp4)
@@ -229,15 +238,26 @@ def test_perform_bad_input(tmp_path, capsys, db):
         assert sorted(tmp_path.iterdir()) == before
 
 
-def test_region_projectors_split_the_motion_in_two(db):
-    """P_low + P_up = I (orthonormal bases), and a motion of the jaw (mostly below the nose) is
-    mostly kept by P_low."""
-    from faceanim.perform import region_projectors
+def test_face_regions_split_each_basis_exactly(db):
+    """The lower and upper copies of each retargeted basis add up to the whole basis, and the
+    jaw's basis lies almost all in the lower copy, the brows' in the upper."""
+    from faceanim.perform import face_regions, performance_rig
+    from faceanim.rig.performance import retarget
 
-    p_low, p_up = region_projectors(db)
-    np.testing.assert_allclose(p_low + p_up, np.eye(db.n_bases), atol=1e-9)
+    regions = face_regions()
+    np.testing.assert_allclose(regions["lower"] + regions["upper"], 1.0)
+    face = Face.default()
+    rig = performance_rig(face, db)
+    whole = retarget(face, db.basis_curves[:2], db.curve_names)
+    n = db.n_bases
+    assert rig.controls[:2] == ["lower_01", "lower_02"] and rig.controls[n] == "upper_01"
+    for i in range(2):
+        np.testing.assert_allclose(rig.blendshape(rig.controls[i]) + rig.blendshape(rig.controls[n + i]),
+                                   whole.blendshape(whole.controls[i]), atol=1e-12)
     jaw = db.weights[np.argmax(db.controls[:, 0])]  # the database's widest mouth opening
-    assert np.linalg.norm(p_low @ jaw) > 0.8 * np.linalg.norm(jaw)
+    lower = rig.evaluate(np.r_[jaw, 0 * jaw][None])[0] - face.mesh.vertices
+    upper = rig.evaluate(np.r_[0 * jaw, jaw][None])[0] - face.mesh.vertices
+    assert np.linalg.norm(lower) > 3 * np.linalg.norm(upper)
 
 
 @needs_videos
@@ -300,3 +320,22 @@ def test_retargeted_bases_span_another_persons_real_expressions(db):
 
     smoothed = explained(1.0)
     assert smoothed > 0.7 and smoothed > explained(0.0)
+
+
+def test_the_head_turns_in_the_face_own_frame_whatever_the_mesh_axes(db):
+    """A face given lying on its back (its mesh turned -90 degrees about x, as a z-up file would
+    be): the head's yaw, pitch and roll turn it about its own axes, so every frame is the upright
+    face's frame turned the same way (not a turn about the mesh's y axis)."""
+    from faceanim.perform import Performance, performance_frames, performance_rig
+
+    face = Face.default()
+    q = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # -90 degrees about x
+    lying = Face(Mesh(face.mesh.vertices @ q.T, face.mesh.faces, name="lying"), face.landmarks @ q.T)
+    pose = np.zeros((3, 6))
+    pose[:, :3] = [[20.0, 0, 0], [0, 15.0, 0], [0, 0, 10.0]]
+    perf = Performance(30.0, np.zeros((3, 2 * db.n_bases)), pose, np.ones(3, bool))
+    up = list(performance_frames(perf, performance_rig(face, db), face))
+    down = list(performance_frames(perf, performance_rig(lying, db), lying))
+    for a, b in zip(up, down):
+        np.testing.assert_allclose(b, a @ q.T, atol=1e-9)
+    assert np.linalg.norm(up[0] - face.mesh.vertices, axis=1).max() > 0.02  # a real turn

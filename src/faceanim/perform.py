@@ -8,30 +8,32 @@ The four components, each in its own layer, meet here:
    real ARKit recording by ``scripts/build_default_motion.py``);
 3. filtering and synthesis (:mod:`faceanim.drivers.video.synthesis`): the noisy controls become
    the database's real motion, as weights of its L deformation bases, feature-wise (the lower
-   and the upper face each from its own controls; ``whole_face=True`` is the paper's one search);
+   and the upper face each from its own controls, each basis split between them;
+   ``whole_face=True`` is the paper's one search);
    ``raw=True`` maps each frame's controls linearly instead (the baseline a user can compare with);
 4. retargeting (:mod:`faceanim.rig.performance`): the bases moved onto the face once; a frame is
    then L weights, whatever the face's vertex count.
 
-:func:`perform` does 3 on a tracking; :func:`performance_rig` does 4; the writers put the result
-in glTF (morph targets + weights, head rotation on a node), MP4 (the face beside the video, with
-its sound) or Live Link Face CSV (ARKit's 52 curves and the head angles).
+:func:`perform` does 3 on a tracking; :func:`performance_rig` does 4; :func:`write_performance`
+puts the result in glTF (morph targets + weights, head rotation on a node), MP4 (the face beside
+the video, with its sound) or Live Link Face CSV (ARKit's 52 curves and the head angles).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
 from faceanim.build.motion import MotionDatabase, head_rotation, load_database
 from faceanim.drivers.video.synthesis import Synthesiser
 from faceanim.drivers.video.tracking import Tracking
-from faceanim.errors import FaceAnimError
+from faceanim.errors import FaceAnimError, shown
 from faceanim.face.controls import CONTROL_NAMES
 from faceanim.face.face import Face
-from faceanim.rig.performance import basis_names, retarget
+from faceanim.rig.performance import retarget
 from faceanim.rig.rig import Rig
 
 WINDOW, K, OVERLAP = 5, 30, 2  # segment length, neighbours, segments blended (the paper: 20, -, 5)
@@ -42,7 +44,8 @@ WINDOW, K, OVERLAP = 5, 30, 2  # segment length, neighbours, segments blended (t
 LOWER_FACE = ("mouth_open", "mouth_width", "mouth_centre_y")
 UPPER_FACE = ("nose_width", "nose_height", "eye_open_R", "eye_open_L", "brow_tilt_R", "brow_tilt_L",
               "brow_raise_R", "brow_raise_L", "brow_gap")
-REGION_EDGE = 0.02  # metres: the lower and upper face blend over this band at the nose tip
+REGION_EDGE = 0.02  # metres: the lower and upper face blend over this band at the subnasale
+HEAD_MIN_CUTOFF, HEAD_BETA = 0.5, 0.05  # One-Euro on the head's angles (Hz; per degree/second)
 
 
 @lru_cache(maxsize=1)
@@ -57,30 +60,40 @@ def default_database() -> MotionDatabase:
 
 @dataclass
 class Performance:
-    """A performance on a motion database's bases: ``weights`` (F, L) per video frame, the
-    tracked head ``pose`` (F, 6; see :data:`~faceanim.drivers.video.tracking.POSE_NAMES`) with
-    untracked frames held from the nearest tracked one, ``tracked`` (F,) and ``fps``."""
+    """A performance on a motion database's bases: ``weights`` (F, 2L) per video frame, the L
+    basis weights of the lower face then the L of the upper face (the same twice when the
+    synthesis was on the whole face or raw); the head ``pose`` (F, 6; see
+    :data:`~faceanim.drivers.video.tracking.POSE_NAMES`) with untracked frames held from the
+    nearest tracked one and the rotation smoothed; ``tracked`` (F,); ``fps``; ``settings``: the
+    window, K, overlap and delay (seconds) the synthesis used (None for raw)."""
 
     fps: float
     weights: np.ndarray
     pose: np.ndarray
     tracked: np.ndarray
-    settings: dict | None = None  # the window, K and overlap the synthesis used (None: raw)
+    settings: dict | None = None
 
     @property
     def n_frames(self) -> int:
         return len(self.weights)
 
-    def rotations(self) -> np.ndarray:
-        """(F, 3, 3) the head's rotation per frame (yaw, pitch, roll of the tracking)."""
+    def rotations(self, axes: np.ndarray | None = None) -> np.ndarray:
+        """(F, 3, 3) the head's rotation per frame (yaw, pitch, roll of the tracking), in the
+        coordinates of a mesh whose face frame has ``axes`` (3, 3; rows: the face's left, up and
+        forward in mesh coordinates, :attr:`FaceFrame.rotation <faceanim.face.frame.FaceFrame>`);
+        without ``axes``, the face's own frame."""
         a = np.radians(self.pose[:, :3])
-        return head_rotation(a[:, 0], a[:, 1], a[:, 2])
+        r = head_rotation(a[:, 0], a[:, 1], a[:, 2])
+        if axes is None:
+            return r
+        f = np.asarray(axes, dtype=np.float64)
+        return np.einsum("ji,fjk,kl->fil", f, r, f)  # F^T R F
 
-    def quaternions(self) -> np.ndarray:
-        """(F, 4) the head's rotation as glTF quaternions (x, y, z, w)."""
+    def quaternions(self, axes: np.ndarray | None = None) -> np.ndarray:
+        """(F, 4) :meth:`rotations` as glTF quaternions (x, y, z, w)."""
         from scipy.spatial.transform import Rotation
 
-        return Rotation.from_matrix(self.rotations()).as_quat()
+        return Rotation.from_matrix(self.rotations(axes)).as_quat()
 
 
 def hold_untracked(values: np.ndarray, tracked: np.ndarray) -> np.ndarray:
@@ -102,86 +115,93 @@ def direct_mapping(db: MotionDatabase) -> np.ndarray:
     return a
 
 
-def region_projectors(db: MotionDatabase) -> tuple[np.ndarray, np.ndarray]:
-    """(L, L) matrices taking basis weights to the weights of their motion's lower part (markers
-    below the nose tip, blended over :data:`REGION_EDGE`) and upper part: ``P_low + P_up = I``
-    (the bases are orthonormal), so one motion for the lower face and another for the upper
-    face combine into one set of L weights."""
+def face_regions() -> dict[str, np.ndarray]:
+    """The lower and upper face as weights on the generic head's vertices (summing to 1): below
+    and above the subnasale, blended over :data:`REGION_EDGE`. Each basis is retargeted once per
+    region (:func:`performance_rig`), so the lower face follows the lower face's synthesis and the
+    upper face the upper's, exactly, and equal weights give the whole basis back."""
     from faceanim.face.generic_head import generic_head
 
-    nose_y = generic_head().landmarks()[2, 1]  # subnasale
-    low = np.clip(0.5 + (nose_y - db.rest[:, 1]) / REGION_EDGE, 0.0, 1.0)
-    p_low = np.einsum("lpd,p,kpd->lk", db.bases, low, db.bases)
-    p_up = np.einsum("lpd,p,kpd->lk", db.bases, 1.0 - low, db.bases)
-    return p_low, p_up
+    head = generic_head()
+    subnasale_y = head.landmarks()[2, 1]
+    low = np.clip(0.5 + (subnasale_y - head.mesh.vertices[:, 1]) / REGION_EDGE, 0.0, 1.0)
+    return {"lower": low, "upper": 1.0 - low}
 
 
 def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = False, window: int = WINDOW,
-            k: int = K, overlap: int = OVERLAP, search: str = "kdtree", whole_face: bool = False) -> Performance:
+            k: int = K, overlap: int = OVERLAP, search: str = "kdtree", whole_face: bool = False,
+            smooth_head: bool = True) -> Performance:
     """The performance of a tracked video on a motion database (the shipped one by default):
     filtered and synthesised from segments of ``window`` frames, ``k`` neighbours, blended over
-    ``overlap`` frames (delay ``overlap - 1`` frames), or mapped frame by frame with ``raw``.
+    ``overlap`` frames (delay ``overlap - 1`` database frames), or mapped frame by frame with
+    ``raw``.
 
     Synthesis is feature-wise: the lower face from a search on :data:`LOWER_FACE`, the upper face
-    from one on :data:`UPPER_FACE`, joined by :func:`region_projectors`; ``whole_face`` makes one
-    search on all 15 controls, as the paper does. Controls are compared in units of their spread
-    over the database and held to its range (0.5-99.5th percentile). A video at another frame
-    rate than the database is resampled to it for the synthesis (segments are W of the
-    database's frames) and back."""
+    from one on :data:`UPPER_FACE` (each basis is split between them, :func:`face_regions`);
+    ``whole_face`` makes one search on all 15 controls, as the paper does. Controls are compared
+    in units of their spread over the database and held to its range (0.5-99.5th percentile). A
+    video at another frame rate than the database is resampled to it for the synthesis (segments
+    are W of the database's frames) and back. The head's angles are smoothed by a One-Euro filter
+    (``smooth_head``)."""
+    from faceanim.drivers.video.filters import one_euro
+
     db = db or default_database()
     controls = hold_untracked(tracking.controls, tracking.tracked)
     pose = hold_untracked(tracking.pose, tracking.tracked)
+    if smooth_head:
+        pose[:, :3] = one_euro(pose[:, :3], tracking.fps, HEAD_MIN_CUTOFF, HEAD_BETA)
     if raw:
         weights = np.c_[controls, np.ones(len(controls))] @ direct_mapping(db)
+        return Performance(tracking.fps, np.hstack([weights, weights]), pose, tracking.tracked.copy())
+    t_video = np.arange(len(controls)) / tracking.fps
+    resample = abs(tracking.fps - db.fps) > 1e-6 * db.fps
+    if resample:
+        t_db = np.arange(int(np.floor(t_video[-1] * db.fps + 1e-9)) + 1) / db.fps
+        controls = np.stack([np.interp(t_db, t_video, c) for c in controls.T], axis=1)
+    # controls in units of their spread over the database (they mix mouth widths and degrees),
+    # each held to the range the database has (a tracked value beyond it is mostly noise)
+    scale = np.maximum(db.controls.std(axis=0), 1e-9)
+    lo, hi = np.percentile(db.controls, [0.5, 99.5], axis=0)
+    query, known = np.clip(controls, lo, hi) / scale, db.controls / scale
+    bounds = np.r_[np.sort(np.unique(np.r_[0, db.take_starts])), db.n_frames]
+    lengths = np.diff(bounds)
+    if int(window) > lengths.max():
+        raise FaceAnimError(f"the motion database's takes are at most {lengths.max()} frames long; give a "
+                            f"window (W) of at most {lengths.max()} frames")
+    window = int(window)
+    if not 1 <= int(overlap) <= window:
+        raise FaceAnimError(f"the overlap must be 1 to {window} frames (the window), got {overlap}")
+    n_segments = int(np.sum(np.maximum(lengths - window + 1, 0)))
+    k = min(int(k), n_segments)  # a small database has fewer segments than K asks
+
+    def synthesise(cols):
+        synth = Synthesiser(known[:, cols], db.weights, window, k, 0.99, int(overlap), db.take_starts, search)
+        return synth.synthesise(query[:, cols])
+
+    if whole_face:
+        lower = upper = synthesise(list(range(len(CONTROL_NAMES))))
     else:
-        t_video = np.arange(len(controls)) / tracking.fps
-        resample = abs(tracking.fps - db.fps) > 1e-6 * db.fps
-        if resample:
-            t_db = np.arange(int(np.floor(t_video[-1] * db.fps + 1e-9)) + 1) / db.fps
-            controls = np.stack([np.interp(t_db, t_video, c) for c in controls.T], axis=1)
-        # controls in units of their spread over the database (they mix mouth widths and degrees),
-        # each held to the range the database has (a tracked value beyond it is mostly noise)
-        scale = np.maximum(db.controls.std(axis=0), 1e-9)
-        lo, hi = np.percentile(db.controls, [0.5, 99.5], axis=0)
-        query, known = np.clip(controls, lo, hi) / scale, db.controls / scale
-        bounds = np.r_[np.sort(np.unique(np.r_[0, db.take_starts])), db.n_frames]
-        lengths = np.diff(bounds)
-        if int(window) > lengths.max():
-            raise FaceAnimError(f"the motion database's takes are at most {lengths.max()} frames long; give a "
-                                f"window (W) of at most {lengths.max()} frames")
-        window = int(window)
-        if not 1 <= int(overlap) <= window:
-            raise FaceAnimError(f"the overlap must be 1 to {window} frames (the window), got {overlap}")
-        n_segments = int(np.sum(np.maximum(lengths - window + 1, 0)))
-        k = min(int(k), n_segments)  # a small database has fewer segments than K asks
-
-        def synthesise(cols):
-            synth = Synthesiser(known[:, cols], db.weights, window, k, 0.99, int(overlap), db.take_starts, search)
-            return synth.synthesise(query[:, cols])
-
-        if whole_face:
-            weights = synthesise(list(range(len(CONTROL_NAMES))))
-        else:
-            p_low, p_up = region_projectors(db)
-            lower = synthesise([CONTROL_NAMES.index(n) for n in LOWER_FACE])
-            upper = synthesise([CONTROL_NAMES.index(n) for n in UPPER_FACE])
-            weights = lower @ p_low.T + upper @ p_up.T
-        if resample:
-            weights = np.stack([np.interp(t_video, t_db, w) for w in weights.T], axis=1)
-        return Performance(tracking.fps, weights, pose, tracking.tracked.copy(),
-                           {"window": window, "k": k, "overlap": int(overlap)})
-    return Performance(tracking.fps, weights, pose, tracking.tracked.copy())
+        lower = synthesise([CONTROL_NAMES.index(n) for n in LOWER_FACE])
+        upper = synthesise([CONTROL_NAMES.index(n) for n in UPPER_FACE])
+    weights = np.hstack([lower, upper])
+    if resample:
+        weights = np.stack([np.interp(t_video, t_db, w) for w in weights.T], axis=1)
+    settings = {"window": window, "k": k, "overlap": int(overlap), "delay": (int(overlap) - 1) / db.fps}
+    return Performance(tracking.fps, weights, pose, tracking.tracked.copy(), settings)
 
 
 def performance_rig(face: Face, db: MotionDatabase | None = None) -> Rig:
-    """The face's rig for a motion database: one control per deformation basis (retargeting)."""
+    """The face's rig for a motion database: each deformation basis retargeted once for the lower
+    and once for the upper face (:func:`face_regions`): 2L controls, ``lower_01`` ... then
+    ``upper_01`` ..., the columns of :attr:`Performance.weights`."""
     db = db or default_database()
-    return retarget(face, db.basis_curves, db.curve_names, names=basis_names(db.n_bases))
+    return retarget(face, db.basis_curves, db.curve_names, regions=face_regions())
 
 
 def head_pivot(face: Face) -> np.ndarray:
-    """(3,) the point the head turns about: between the ears, at the eyes' height, one
-    inter-ocular distance behind the nose bridge's plane (roughly the top of the neck)."""
+    """(3,) the point the head turns about: midway between the face oval's sides in front of the
+    ears (landmarks 234, 454) at the eyes' height, 0.3 inter-ocular distances further back (near
+    the skull's centre; the neck's top is lower, but a head turning about it sways its face)."""
     fr = face.frame
     lm = face.landmarks
     centre = 0.5 * (lm[234] + lm[454])
@@ -189,26 +209,109 @@ def head_pivot(face: Face) -> np.ndarray:
     return centre - fr.rotation[2] * 0.3 * fr.iod
 
 
+UPPER_ARKIT = ("Eye", "Brow")  # ARKit curves of the upper face; all others are the lower face's
+
+
 def arkit_curves(perf: Performance, db: MotionDatabase) -> np.ndarray:
     """(F, 52) ARKit curves (Live Link Face order) of a performance: the bases written as the
-    generic head's shapes (ICT names) mapped back to ARKit's names, clamped to [0, 1]."""
+    generic head's shapes (ICT names), the eyes' and brows' from the upper face's weights and the
+    rest from the lower face's, mapped back to ARKit's names, clamped to [0, 1]. The eyes' gaze
+    (``EyeLook*``) is 0: no marker sees the eyeballs."""
     from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
 
-    ict = perf.weights @ db.basis_curves
+    n_l = db.n_bases
+    lower = perf.weights[:, :n_l] @ db.basis_curves
+    upper = perf.weights[:, n_l:] @ db.basis_curves
     col = {n: i for i, n in enumerate(db.curve_names)}
     out = np.zeros((perf.n_frames, len(ARKIT_NAMES)))
     for a, name in enumerate(ARKIT_NAMES):
         parts = [col[n] for n in ict_name(name) if n in col]
         if parts:
-            out[:, a] = ict[:, parts].mean(axis=1)
+            out[:, a] = (upper if name.startswith(UPPER_ARKIT) else lower)[:, parts].mean(axis=1)
     return np.clip(out, 0.0, 1.0)
 
 
-def frames_of(perf: Performance, rig: Rig, pivot: np.ndarray, chunk: int = 64):
+def performance_frames(perf: Performance, rig: Rig, face: Face, chunk: int = 64):
     """The face's vertices per frame: the bases blended, then turned by the head's rotation
-    about ``pivot``."""
-    rot = perf.rotations()
+    (in the face's own frame) about :func:`head_pivot`."""
+    rot = perf.rotations(face.frame.rotation)
+    pivot = head_pivot(face)
     for a in range(0, perf.n_frames, chunk):
         v = rig.evaluate(perf.weights[a:a + chunk])
         for j, vf in enumerate(v):
             yield (vf - pivot) @ rot[a + j].T + pivot
+
+
+def video_sound(video, folder) -> Path | None:
+    """The sound of ``video`` as a WAV in ``folder`` (None if it has none or ffmpeg cannot read
+    it); ffmpeg's own messages are never shown."""
+    import subprocess
+
+    import imageio_ffmpeg
+
+    wav = Path(folder) / "sound.wav"
+    r = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-nostdin", "-y", "-i", str(video), "-vn",
+                        "-ac", "1", "-ar", "44100", str(wav)], capture_output=True, check=False)
+    return wav if r.returncode == 0 and wav.is_file() and wav.stat().st_size > 1000 else None
+
+
+def side_by_side(video_frames, face_frames, size: int):
+    """Each video frame scaled to ``size`` pixels high (even width) beside the face's render."""
+    import cv2
+
+    for img, face_img in zip(video_frames, face_frames):
+        h, w = img.shape[:2]
+        width = max(2, int(round(w * size / h / 2)) * 2)
+        yield np.hstack([cv2.resize(img, (width, size), interpolation=cv2.INTER_AREA), face_img])
+
+
+def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | None = None, video=None,
+                      size: int = 512, progress=None) -> Path:
+    """Write a performance by the suffix of ``path``:
+
+    - ``.csv``: Live Link Face (:func:`arkit_curves`, the head's angles in radians);
+    - ``.glb``: ``face`` with one morph target per control of :func:`performance_rig`, each scaled
+      by its basis's spread over the database (weights of about -1..1 for the database's motion;
+      the scales are in the scene's ``extras.basis_spread``), the weights and the head's rotation
+      (a node ``head`` at :func:`head_pivot`) animated per frame;
+    - ``.mp4``: the frames of ``video`` (the one tracked) beside the face rendered at ``size``
+      pixels high, with the video's sound.
+    """
+    import tempfile
+
+    from faceanim.io.arkit_csv import write_arkit_csv
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        return write_arkit_csv(path, arkit_curves(perf, db), perf.fps, np.radians(perf.pose[:, :3]))
+    if face is None:
+        raise FaceAnimError(f"a {suffix} output needs the face to animate")
+    rig = performance_rig(face, db)
+    if suffix == ".glb":
+        from faceanim.io.gltf import write_gltf
+
+        spread = np.tile(np.maximum(db.weights.std(axis=0), 1e-12), 2)
+        shapes = {n: rig.blendshape(n) * s for n, s in zip(rig.controls, spread)}
+        times = np.arange(perf.n_frames) / perf.fps
+        extras = {"fps": perf.fps, "basis_spread": [float(x) for x in spread[: db.n_bases]]}
+        if video is not None:
+            extras["source"] = Path(video).name
+        return write_gltf(path, face.mesh, shapes, times=times, weights=perf.weights / spread,
+                          animation_name="performance", rotations=perf.quaternions(face.frame.rotation),
+                          pivot=head_pivot(face), extras=extras)
+    if suffix == ".mp4":
+        from faceanim.io.video import video_frames, video_info
+        from faceanim.render.gl import OffscreenRenderer
+        from faceanim.render.video import write_video
+
+        if video is None:
+            raise FaceAnimError("an MP4 of a performance needs the video it was tracked in")
+        info = video_info(video)
+        with tempfile.TemporaryDirectory(dir=path.parent.resolve()) as tmp, \
+                OffscreenRenderer(face.mesh, size=(size, size), **face.view(yaw=0.0, pitch=0.0)) as r:
+            sound = video_sound(video, tmp)
+            faces = (r.render(v) for v in performance_frames(perf, rig, face))
+            return write_video(path, side_by_side(video_frames(info), faces, size), fps=perf.fps, audio=sound,
+                               progress=progress)
+    raise FaceAnimError(f"unknown output kind '{shown(suffix)}'; write .glb, .mp4 or .csv")

@@ -256,9 +256,10 @@ def stable_registration(markers: np.ndarray, rest: np.ndarray, iterations: int =
     ``1 / (s_p^2 + floor^2)``, ``s_p`` the marker's RMS spread about its median in the pose-free
     frames (no face model needed: markers on the forehead and nose bridge earn the weight).
     Returns (rotations (F, 3, 3), translations (F, 3), weights (P,)) with ``X_f = R_f Y_f + T_f``,
-    ``Y_f`` in ``rest``'s frame. Measured on the real take turned by a known head motion (15, 8
-    and 5 degree sways): 0.15 degrees median, 0.61 (95th percentile) and 0.64 mm mean marker error,
-    against the factorisation's 0.73, 4.3 and 1.6 mm (``scripts/eval_motion.py``)."""
+    ``Y_f`` in ``rest``'s frame. On the real take turned by the head motion tracked in d0.mp4
+    (``faceanim mocap build ... --head-motion d0.mp4`` prints it): 0.15 degrees median, 0.61 at the
+    95th percentile, against the factorisation's 0.73 and 4.25 (``tests/test_motion.py`` checks
+    it on a known sweep)."""
     x = np.asarray(markers, dtype=np.float64)
     w = np.ones(x.shape[1])
     for _ in range(max(1, int(iterations))):
@@ -297,18 +298,21 @@ def rotation_error(recovered: np.ndarray, applied: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1, 1)))
 
 
-def marker_controls(markers: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+def marker_controls(markers: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """Section 3.1's last step: the 15 control parameters of every motion capture frame from its
     markers in the head's frame (:func:`head_frame`), seen fronto-parallel (the first 19 markers are
-    the tracked features, as :func:`marker_vertices` orders them). The neutral frame is the one
-    nearest ``rest`` (P, 3), the markers on the neutral head. Returns (raw (F, 15), normalised
-    (F, 15), the neutral frame)."""
-    from faceanim.face.controls import control_parameters, normalise
+    the tracked features, as :func:`marker_vertices` orders them), measured from the database's
+    typical face and in the lengths of its neutral frame, found as in a video
+    (:func:`~faceanim.face.controls.typical_controls`, :func:`~faceanim.face.controls.find_neutral`:
+    the same rule on both sides, so that a performer's relaxed face and the database's meet at 0).
+    Returns (raw (F, 15), normalised (F, 15), the neutral frame)."""
+    from faceanim.face.controls import control_parameters, find_neutral, normalise, typical_controls
 
     feats = markers[:, : len(FEATURE_NAMES), :2]
     raw = np.stack([control_parameters(f) for f in feats])
-    neutral = int(np.argmin(np.linalg.norm(markers - rest, axis=(1, 2))))
-    return raw, normalise(raw, raw[neutral], feats[neutral]), neutral
+    still, every = np.zeros((len(raw), 6)), np.ones(len(raw), dtype=bool)
+    neutral = find_neutral(raw, still, every)
+    return raw, normalise(raw, typical_controls(raw, still, every), feats[neutral]), neutral
 
 
 def deformation_bases(markers: np.ndarray, rest: np.ndarray, energy: float = 0.999,
@@ -342,7 +346,7 @@ class MotionDatabase:
     (F, 15) normalised and ``raw`` (F, 15) measured control parameters, ``neutral`` (the neutral
     frame), ``take_starts`` (T,) the first frame of each recording, ``take_names`` (T,),
     ``rotation_error`` (F,) degrees between the head rotation applied and the one the
-    factorisation recovered (NaN where none was applied), ``bases`` (L, P, 3) the deformation
+    pose recovery found (NaN where none was applied), ``bases`` (L, P, 3) the deformation
     bases (orthonormal), ``weights`` (F, L) each frame's motion in them, ``curve_names`` (C,) the
     generic head's shapes (ARKit's, ICT names) and ``basis_curves`` (L, C) each basis as a
     combination of those shapes (from the recorded curves: the bases on the whole head).
@@ -393,6 +397,7 @@ class MotionDatabase:
 
 
 POSE_METHODS = ("stable", "factorisation")
+UNSEEN_SHAPES = ("eyeLook",)  # shapes no marker sees: left out of the bases' shape combinations
 
 
 def build_database(takes, fps: float = 30.0, head_motion: np.ndarray | None = None, head=None,
@@ -403,8 +408,8 @@ def build_database(takes, fps: float = 30.0, head_motion: np.ndarray | None = No
     pose separated by :func:`stable_registration` (``pose="stable"``) or the paper's
     :func:`factorise` (``"factorisation"``, put in the head's frame by :func:`head_frame`); the
     control parameters by :func:`marker_controls`; the deformation bases keeping ``energy``
-    (:func:`deformation_bases`), each written as a combination of the head's shapes by least
-    squares against the recorded curves."""
+    (:func:`deformation_bases`), each written as a combination of the head's shapes (all but the
+    eyes' gaze, :data:`UNSEEN_SHAPES`) by least squares against the recorded curves."""
     from faceanim.face.controls import CONTROL_NAMES
     from faceanim.face.generic_head import generic_head
 
@@ -449,11 +454,15 @@ def build_database(takes, fps: float = 30.0, head_motion: np.ndarray | None = No
         recovered, pose_free_markers = fact.rotations, head_frame(fact, x, rest)
     else:
         raise FaceAnimError(f"unknown pose method '{pose}'; choose {' or '.join(POSE_METHODS)}")
-    raw, controls, neutral = marker_controls(pose_free_markers, rest)
+    raw, controls, neutral = marker_controls(pose_free_markers)
     bases, _ = deformation_bases(pose_free_markers, rest, energy)
     d = (pose_free_markers - rest).reshape(len(x), -1)
     weights = d @ bases.reshape(len(bases), -1).T
-    basis_curves, *_ = np.linalg.lstsq(weights, np.concatenate(curves), rcond=None)
+    # the bases as the head's shapes, except the eyes' gaze (the eyeballs turn; no marker is on
+    # them, so the bases cannot say where the eyes look)
+    seen = [k for k, n in enumerate(shape_names) if not n.startswith(UNSEEN_SHAPES)]
+    shape_names = [shape_names[k] for k in seen]
+    basis_curves, *_ = np.linalg.lstsq(weights, np.concatenate(curves)[:, seen], rcond=None)
     # the recovered rotations against the applied ones, after the free global rotation
     err = rotation_error(recovered, applied)
     moved = np.ptp(applied.reshape(len(applied), -1), axis=0).max() > 1e-9  # was any turn applied?

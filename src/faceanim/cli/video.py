@@ -113,33 +113,11 @@ def _cmd_mocap_build(args) -> None:
     report([out])
 
 
-def _video_sound(video: Path, folder: Path) -> Path | None:
-    """The video's sound as a WAV in ``folder`` (None if it has none or ffmpeg cannot read it)."""
-    import subprocess
-
-    import imageio_ffmpeg
-
-    wav = folder / "sound.wav"
-    r = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-nostdin", "-y", "-i", str(video), "-vn",
-                        "-ac", "1", "-ar", "44100", str(wav)], capture_output=True, check=False)
-    return wav if r.returncode == 0 and wav.is_file() and wav.stat().st_size > 1000 else None
-
-
-def _side_by_side(video_frames, face_frames, size: int):
-    """Each video frame scaled to ``size`` pixels high beside the face's render."""
-    import cv2
-
-    for img, face in zip(video_frames, face_frames):
-        h, w = img.shape[:2]
-        width = max(2, int(round(w * size / h / 2)) * 2)
-        yield np.hstack([cv2.resize(img, (width, size), interpolation=cv2.INTER_AREA), face])
-
-
 def _cmd_perform(args) -> None:
     from faceanim.build.motion import load_database
     from faceanim.drivers.video.tracking import track_frames
     from faceanim.io.video import video_frames, video_info
-    from faceanim.perform import default_database, perform, performance_rig
+    from faceanim.perform import default_database, perform, write_performance
 
     out = Path(args.output)
     inputs = [Path(p).resolve() for p in (args.video, args.db, args.face, args.landmarks) if p]
@@ -159,9 +137,7 @@ def _cmd_perform(args) -> None:
         w, h = info.size
         check_video(info.frames_expected, max(2, int(round(w * args.size / h / 2)) * 2) + args.size, args.size)
     db = load_database(args.db) if args.db else default_database()
-    face = rig = None
-    if suffix != ".csv":
-        face = load_face(args)
+    face = load_face(args) if suffix != ".csv" else None
     with progress(info.frames_expected, "tracking", args.quiet) as bar:
         tr = track_frames(video_frames(info), info.fps, args.neutral_frame, bar)
     perf = perform(tr, db, raw=args.raw, window=args.window, k=args.k, overlap=args.overlap,
@@ -172,39 +148,9 @@ def _cmd_perform(args) -> None:
         used = perf.settings
         how = (f"filtered and synthesised {'on the whole face' if args.whole_face else 'feature-wise'} from "
                f"{db.n_frames} database frames (W={used['window']}, K={used['k']}, "
-               f"delay {used['overlap'] - 1} frame{'' if used['overlap'] == 2 else 's'})")
-    if suffix == ".csv":
-        from faceanim.io.arkit_csv import write_arkit_csv
-        from faceanim.perform import arkit_curves
-
-        written = write_arkit_csv(out, arkit_curves(perf, db), perf.fps, np.radians(perf.pose[:, :3]))
-    else:
-        from faceanim.perform import head_pivot
-
-        rig = performance_rig(face, db)
-        pivot = head_pivot(face)
-        if suffix == ".mp4":
-            import tempfile
-
-            from faceanim.perform import frames_of
-            from faceanim.render.gl import OffscreenRenderer
-            from faceanim.render.video import write_video
-
-            size = args.size
-            with tempfile.TemporaryDirectory(dir=out.parent.resolve()) as tmp, \
-                    OffscreenRenderer(face.mesh, size=(size, size), **face.view(yaw=0.0, pitch=0.0)) as r, \
-                    progress(perf.n_frames, "rendering", args.quiet) as bar:
-                sound = _video_sound(Path(args.video), Path(tmp))
-                faces = (r.render(v) for v in frames_of(perf, rig, pivot))
-                written = write_video(out, _side_by_side(video_frames(info), faces, size), fps=perf.fps,
-                                      audio=sound, progress=bar)
-        else:
-            from faceanim.io.gltf import write_gltf
-
-            times = np.arange(perf.n_frames) / perf.fps
-            written = write_gltf(out, face.mesh, rig.blendshape_dict(), times=times, weights=perf.weights,
-                                 animation_name="performance", rotations=perf.quaternions(), pivot=pivot,
-                                 extras={"source": Path(args.video).name, "fps": perf.fps})
+               f"delay {1000 * used['delay']:.0f} ms)")
+    with progress(perf.n_frames if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
+        written = write_performance(out, perf, db, face, args.video, args.size, bar)
     print(f"tracked {int(tr.tracked.sum())} of {tr.n_frames} frames at {tr.fps:g} fps; {how}; "
           f"{db.n_bases} deformation bases")
     report([written])

@@ -85,3 +85,46 @@ def normalise(raw: np.ndarray, neutral_raw: np.ndarray, neutral_features: np.nda
     ref = reference_lengths(neutral_features)
     scale = np.array([1.0 if CONTROLS[n] == "degrees" else max(ref[CONTROLS[n]], 1e-12) for n in CONTROL_NAMES])
     return (raw - neutral_raw) / scale
+
+
+# the neutral face (4.1), found the same way in a video and in a motion database: the frames that
+# look at the camera (within this many degrees of yaw and pitch) ...
+NEUTRAL_MAX_TURN = 15.0
+# ... with the mouth among this fraction of the most closed
+NEUTRAL_CLOSED_QUANTILE = 0.3
+
+
+def _neutral_rows(raw: np.ndarray, pose: np.ndarray, usable: np.ndarray):
+    ok = usable & (np.abs(pose[:, 0]) < NEUTRAL_MAX_TURN) & (np.abs(pose[:, 1]) < NEUTRAL_MAX_TURN)
+    if not ok.any():
+        ok = usable
+    if not ok.any():
+        from faceanim.errors import LandmarkError
+
+        raise LandmarkError("no face was found in any frame; give a video where the face is lit, sharp and large")
+    rows = np.flatnonzero(ok)
+    typical = np.median(raw[rows], axis=0)  # eyes, brows, nose: as the clip usually has them
+    spread = np.median(np.abs(raw[rows] - typical), axis=0) + 1e-9
+    opening = raw[rows, 0] / np.maximum(raw[rows, 1], 1e-12)
+    closed = rows[opening <= np.quantile(opening, NEUTRAL_CLOSED_QUANTILE)]
+    mouth = [CONTROL_NAMES.index(n) for n in CONTROL_NAMES if n.startswith(("mouth", "lips", "corners"))]
+    typical[mouth] = np.median(raw[closed][:, mouth], axis=0)  # the mouth: as it is when closed
+    return closed, typical, spread
+
+
+def typical_controls(raw: np.ndarray, pose: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """(15,) the performer's typical face, the reference the controls are measured from: each raw
+    control's median over the usable frames that look at the camera, the mouth's over those among
+    them with the mouth most closed (a clip may smile or talk most of the time). A median over the
+    clip is steadier than any one frame (a neutral frame caught mid-blink or with the head bowed
+    would offset every frame of the eyes)."""
+    return _neutral_rows(raw, pose, usable)[1]
+
+
+def find_neutral(raw: np.ndarray, pose: np.ndarray, usable: np.ndarray) -> int:
+    """The neutral frame: among the usable frames looking at the camera (all usable frames if
+    none does) with the mouth among the most closed, the one nearest the typical face
+    (:func:`typical_controls`; scaled by the spread). Its features give the lengths the controls
+    are measured in."""
+    closed, typical, spread = _neutral_rows(raw, pose, usable)
+    return int(closed[np.argmin((((raw[closed] - typical) / spread) ** 2).sum(axis=1))])

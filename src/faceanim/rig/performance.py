@@ -175,12 +175,17 @@ def jacobians(f, points: np.ndarray, step: float) -> np.ndarray:
 
 
 def retarget(face: Face, basis_curves: np.ndarray, curve_names, head: GenericHead | None = None,
-             names=None, smoothing: float = SMOOTHING) -> Rig:
+             names=None, smoothing: float = SMOOTHING, regions: dict | None = None) -> Rig:
     """A :class:`Rig` of ``face`` with one control per deformation basis (``basis_curves`` (L, C)
     over the generic head's shapes ``curve_names``, as a motion database stores them): the
     bases moved onto the face by the dense correspondence and the landmark spline's Jacobian
     (stages 1-3 of the module docstring). Weight ``lambda_i`` of control ``i`` moves the face by
-    ``lambda_i delta x_t,i`` (eq. 7)."""
+    ``lambda_i delta x_t,i`` (eq. 7).
+
+    ``regions``: name -> (V,) weights on the generic head's vertices summing to 1 over the regions
+    (e.g. the lower and upper face): then each basis is split into one copy per region, controls
+    ``{region}_{01..}``, so that each region can follow its own weights and the same weights on
+    all of them give the whole basis back."""
     head = head or generic_head()
     k = np.asarray(basis_curves, dtype=np.float64)
     if k.ndim != 2 or k.shape[1] != len(curve_names) or not np.all(np.isfinite(k)):
@@ -189,6 +194,12 @@ def retarget(face: Face, basis_curves: np.ndarray, curve_names, head: GenericHea
     if unknown:
         raise FaceAnimError(f"the generic head has no shape '{unknown[0]}'")
     bases = source_bases(k, curve_names, head)  # (L, Vs, 3)
+    if regions:
+        parts = [np.asarray(w, dtype=np.float64) for w in regions.values()]
+        if any(w.shape != (head.mesh.n_vertices,) for w in parts) or not np.allclose(sum(parts), 1.0):
+            raise FaceAnimError("region weights must be (V,) per region on the generic head, summing to 1")
+        bases = np.concatenate([bases * w[None, :, None] for w in parts])
+        names = names or [f"{r}_{i + 1:02d}" for r in regions for i in range(len(k))]
     tri, bary = correspondence(face, head, smoothing)
     corners = head.mesh.faces[tri]  # (Vt, 3)
     at = np.einsum("vc,lvcd->lvd", bary, bases[:, corners])  # delta x_s,i at each x_s
@@ -197,7 +208,9 @@ def retarget(face: Face, basis_curves: np.ndarray, curve_names, head: GenericHea
     step = 1e-3 * float(np.ptp(head.landmarks(), axis=0).max())
     moving = np.flatnonzero(np.abs(at).max(axis=(0, 2)) > 0)
     jac = jacobians(f, x_s[moving], step)
-    target = np.zeros((len(k), face.mesh.n_vertices, 3))
+    target = np.zeros((len(bases), face.mesh.n_vertices, 3))
     target[:, moving] = np.einsum("vij,lvj->lvi", jac, at[:, moving])
-    names = list(names or basis_names(len(k)))
+    names = list(names or basis_names(len(bases)))
+    if len(names) != len(bases):
+        raise FaceAnimError(f"give {len(bases)} control names, got {len(names)}")
     return Rig.from_blendshapes(face.mesh, dict(zip(names, target)))

@@ -17,9 +17,9 @@ the mapping from controls to motion is disambiguated by the frames around:
   segment covering it has been seen.
 
 The K nearest segments come from the paper's **neighbourhood graph** (4.4, :class:`NeighbourhoodGraph`:
-segments linked to their nearest neighbours; a query starts from the nearest of the previous
-query's neighbours and walks the graph best-first, using the temporal coherence of the control
-signal), from scipy's k-d tree, or by brute force (``search=``).
+segments linked to diverse near neighbours and to their successors in time; a query starts from
+the previous query's neighbours and their successors, using the temporal coherence of the control
+signal, and walks the graph as a beam), from scipy's k-d tree, or by brute force (``search=``).
 """
 
 from __future__ import annotations

@@ -37,12 +37,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from faceanim.errors import LandmarkError
-from faceanim.face.controls import (
+from faceanim.face.controls import (  # noqa: F401 (find_neutral: part of this module's API)
     CONTROL_NAMES,
     FEATURE_NAMES,
     FEATURES,
     control_parameters,
+    find_neutral,
     normalise,
+    typical_controls,
 )
 from faceanim.face.frame import similarity
 from faceanim.face.generic_head import generic_head
@@ -51,10 +53,6 @@ POSE_NAMES = ("yaw", "pitch", "roll", "x", "y", "scale")
 # landmarks the head pose is fitted on: those none of the generic head's 53 expression shapes
 # moves by more than this (metres)
 RIGID_MOTION = 2e-3
-# a neutral frame looks at the camera: within this many degrees of yaw and pitch
-NEUTRAL_MAX_TURN = 15.0
-# ... and has its mouth among this fraction of the clip's most closed
-NEUTRAL_CLOSED_QUANTILE = 0.3
 
 
 @dataclass
@@ -115,27 +113,6 @@ def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np
     return np.array([yaw, pitch, roll, anchor[0], anchor[1], s]), frontal[idx, :2]
 
 
-def find_neutral(raw: np.ndarray, pose: np.ndarray, tracked: np.ndarray) -> int:
-    """The neutral frame: among tracked frames looking at the camera (all tracked frames if none
-    does), those whose mouth is among the most closed (the lowest 30% of lip distance over mouth
-    width: a clip may smile or talk most of the time), and of these the one nearest the typical
-    face (per-parameter median over the clip, for the mouth over the closed-mouth frames; scaled
-    by the spread)."""
-    ok = tracked & (np.abs(pose[:, 0]) < NEUTRAL_MAX_TURN) & (np.abs(pose[:, 1]) < NEUTRAL_MAX_TURN)
-    if not ok.any():
-        ok = tracked
-    if not ok.any():
-        raise LandmarkError("no face was found in any frame; give a video where the face is lit, sharp and large")
-    rows = np.flatnonzero(ok)
-    typical = np.median(raw[rows], axis=0)  # eyes, brows, nose: as the clip usually has them
-    spread = np.median(np.abs(raw[rows] - typical), axis=0) + 1e-9
-    opening = raw[rows, 0] / np.maximum(raw[rows, 1], 1e-12)
-    rows = rows[opening <= np.quantile(opening, NEUTRAL_CLOSED_QUANTILE)]
-    mouth = [CONTROL_NAMES.index(n) for n in CONTROL_NAMES if n.startswith(("mouth", "lips", "corners"))]
-    typical[mouth] = np.median(raw[rows][:, mouth], axis=0)  # the mouth: as it is when closed
-    return int(rows[np.argmin((((raw[rows] - typical) / spread) ** 2).sum(axis=1))])
-
-
 def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | None = None,
                  progress=None) -> Tracking:
     """Track every frame (RGB arrays) of a clip; see the module docstring."""
@@ -177,6 +154,7 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
     pose, feats, raw, tracked = np.array(pose), np.array(feats), np.array(raw), np.array(tracked)
     if neutral_frame is None:
         neutral = find_neutral(raw, pose, tracked)
+        reference = typical_controls(raw, pose, tracked)
     else:
         neutral = int(neutral_frame)
         if not 0 <= neutral < len(tracked):
@@ -184,7 +162,8 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
         if not tracked[neutral]:
             raise LandmarkError(f"no face was found in frame {neutral}; give a frame where the face is seen "
                                 "as --neutral-frame")
-    return Tracking(float(fps), tracked, pose, feats, raw, normalise(raw, raw[neutral], feats[neutral]), neutral)
+        reference = raw[neutral]
+    return Tracking(float(fps), tracked, pose, feats, raw, normalise(raw, reference, feats[neutral]), neutral)
 
 
 def track_video(path, neutral_frame: int | None = None, progress=None) -> Tracking:
