@@ -180,6 +180,14 @@ def test_perform_command_writes_glb_csv_and_mp4(tmp_path, db):
     assert doc["accessors"][anim["samplers"][0]["input"]]["count"] == 78
     assert doc["accessors"][anim["samplers"][1]["output"]]["count"] == 78
     assert [n["name"] for n in doc["nodes"]][1:] == ["head_offset", "head"]
+    import json
+    import shutil
+
+    validator = Path(__file__).resolve().parents[1] / "tools" / "validate_gltf.js"
+    if shutil.which("node") and (validator.parent / "node_modules" / "gltf-validator").exists():
+        report = json.loads(subprocess.run(["node", str(validator), str(glb)], capture_output=True, text=True,
+                                           check=True).stdout)
+        assert report["numErrors"] == 0 and report["numWarnings"] == 0, report
 
     assert run(["perform", video, "--quiet", "-o", out_csv]) == 0
     take = read_arkit_csv(out_csv)
