@@ -315,3 +315,50 @@ def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | 
             return write_video(path, side_by_side(video_frames(info), faces, size), fps=perf.fps, audio=sound,
                                progress=progress)
     raise FaceAnimError(f"unknown output kind '{shown(suffix)}'; write .glb, .mp4 or .csv")
+
+
+def write_take(path, take, face: Face | None = None, fps: float = 30.0, size: int = 512, progress=None) -> Path:
+    """Play a recorded Live Link Face take (:class:`~faceanim.io.arkit_csv.ArkitTake`, resampled to
+    ``fps``) on ``face`` by the suffix of ``path``:
+
+    - ``.glb``: the face with its ARKit blendshapes (:func:`~faceanim.rig.arkit.arkit_rig`, Apple's
+      names) as morph targets, the recorded weights and head rotation animated (node ``head``);
+    - ``.mp4``: the face rendered, turning with the recorded head;
+    - ``.csv``: the take itself at ``fps`` (Live Link Face).
+
+    The recorded head angles are taken as yaw, pitch, roll in radians with faceanim's signs (the
+    shared take's are all zero: the signs are unchecked against a moving recording)."""
+    from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
+    from faceanim.rig.arkit import apple_name, arkit_rig
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    r = take.resample(fps)
+    if suffix == ".csv":
+        return write_arkit_csv(path, r.weights, fps, r.head)
+    if face is None:
+        raise FaceAnimError(f"a {suffix} output needs the face to animate")
+    rig, _ = arkit_rig(face)
+    column = {apple_name(n): k for k, n in enumerate(ARKIT_NAMES)}
+    curves = r.weights[:, [column[c] for c in rig.controls]]
+    pose = np.zeros((r.n_samples, 6))
+    pose[:, :3] = np.degrees(r.head)
+    perf = Performance(fps, curves, pose, np.ones(r.n_samples, dtype=bool))
+    if suffix == ".glb":
+        from faceanim.io.gltf import write_gltf
+
+        used = [k for k in range(rig.n_controls) if np.abs(curves[:, k]).max() > 0]
+        if not used:
+            raise FaceAnimError("the take moves no blendshape; give a recording of a moving face")
+        shapes = {rig.controls[k]: rig.blendshape(rig.controls[k]) for k in used}
+        return write_gltf(path, face.mesh, shapes, times=np.arange(r.n_samples) / fps, weights=curves[:, used],
+                          animation_name="take", rotations=perf.quaternions(face.frame.rotation),
+                          pivot=head_pivot(face), extras={"fps": fps, "source": Path(take.source).name})
+    if suffix == ".mp4":
+        from faceanim.render.gl import OffscreenRenderer
+        from faceanim.render.video import write_video
+
+        with OffscreenRenderer(face.mesh, size=(size, size), **face.view(yaw=0.0, pitch=0.0)) as renderer:
+            frames = (renderer.render(v) for v in performance_frames(perf, rig, face))
+            return write_video(path, frames, fps=fps, progress=progress)
+    raise FaceAnimError(f"unknown output kind '{shown(suffix)}'; write .glb, .mp4 or .csv")

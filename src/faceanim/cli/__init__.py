@@ -77,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"faceanim {_version()}")
     p.add_argument("--verbose", action="store_true", help="show MediaPipe's log and Python tracebacks")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
-                           metavar="{demo,photo,track,mocap,landmarks,deform,render,preprocess,au,transfer,wires,say,fap,direct}")
+                           metavar="{demo,photo,track,mocap,perform,arkit,landmarks,deform,render,preprocess,au,transfer,wires,say,fap,direct}")
 
     d = sub.add_parser("demo", help="animate the embedded default face: GLB, MP4 and PNGs", formatter_class=fmt)
     d.add_argument("--out", default="faceanim-demo", help="output folder")

@@ -156,6 +156,32 @@ def _cmd_perform(args) -> None:
     report([written])
 
 
+def _cmd_arkit_play(args) -> None:
+    from faceanim.io.arkit_csv import read_arkit_csv
+    from faceanim.perform import write_take
+
+    out = Path(args.output)
+    inputs = [Path(p).resolve() for p in (args.take, args.face, args.landmarks) if p]
+    if out.resolve() in inputs:
+        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
+    check_outputs(args.output)
+    suffix = out.suffix.lower()
+    if suffix == ".csv" and (args.face or args.landmarks):
+        raise CommandError("a .csv output is the take itself, not a face: drop --face/--landmarks, or write "
+                           ".glb or .mp4")
+    take = read_arkit_csv(args.take)
+    if suffix == ".mp4":
+        from faceanim.limits import check_video
+
+        check_video(int(take.duration * args.fps) + 1, args.size, args.size)
+    face = load_face(args) if suffix != ".csv" else None
+    n = int(take.duration * args.fps) + 1
+    with progress(n if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
+        written = write_take(out, take, face, args.fps, args.size, bar)
+    print(f"{n} frames ({take.duration:.1f} s) of the take at {args.fps:g} fps")
+    report([written])
+
+
 def register(sub) -> None:
     t = sub.add_parser("track", help="head pose (6 DOF) and the 15 expression control parameters of a video's face, "
                                      "per frame, as CSV (Chai et al. 2003)",
@@ -226,3 +252,19 @@ def register(sub) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     add_output(p, [".glb", ".mp4", ".csv"])
     p.set_defaults(func=_cmd_perform)
+
+    a = sub.add_parser("arkit", help="Live Link Face recordings (Apple ARKit's 52 curves) played on any face")
+    asub = a.add_subparsers(dest="arkit_command", required=True, metavar="{play}")
+    ap = asub.add_parser("play", help="play a Live Link Face CSV take on a face: glTF, MP4 or CSV",
+                         description="Play a recorded take (ARKit's 52 blendshape curves and the head's angles, as "
+                                     "Live Link Face writes them) on the face (the default face unless --face): the "
+                                     "generic head's ARKit shapes are retargeted onto it (Apple's names; tongueOut "
+                                     "has no shape) and driven by the recorded curves. .glb: morph targets, weights "
+                                     "and head rotation animated; .mp4: rendered; .csv: the take resampled.")
+    ap.add_argument("take", metavar="TAKE.csv", help="a Live Link Face CSV recording")
+    add_face(ap, positional=False)
+    ap.add_argument("--fps", type=_arg_type("--fps", 1, 240), default=30.0, help="frames per second of the output")
+    ap.add_argument("--size", type=_even("--size", 64, 1024), default=512, help="MP4 pixels per side (even)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_output(ap, [".glb", ".mp4", ".csv"])
+    ap.set_defaults(func=_cmd_arkit_play)

@@ -1,0 +1,110 @@
+"""Live Link Face takes played on any face (issue 12, item 3): ARKit's blendshapes retargeted from
+the generic head with Apple's names; the take's curves and head angles animated."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from faceanim.cli import main
+from faceanim.face.face import Face
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+TAKE = DATA / "arkit-curves" / "alex_rom_3.csv"
+needs_take = pytest.mark.skipif(not TAKE.is_file(), reason="../shared/data/arkit-curves is not here")
+
+
+def run(args) -> int:
+    try:
+        return main([str(a) for a in args])
+    except SystemExit as exc:
+        return exc.code
+
+
+def test_arkit_rig_names_and_shapes_on_the_default_face():
+    """51 controls with Apple's names in Live Link Face's order (tongueOut has no shape); on the
+    default face (made from the generic head) the retargeted shapes are within 10% of the shapes
+    carried exactly by the fit; browInnerUp is the sum of ICT's halves."""
+    from faceanim.face.default import default_shapes
+    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.rig.arkit import apple_name, arkit_rig
+
+    rig, missing = arkit_rig(Face.default())
+    assert missing == ["tongueOut"] and rig.n_controls == 51
+    assert rig.controls == [apple_name(n) for n in ARKIT_NAMES if n != "TongueOut"]
+    assert rig.controls[0] == "eyeBlinkLeft" and "jawOpen" in rig.controls
+    carried = default_shapes()
+    for apple, ict in [("jawOpen", ["jawOpen"]), ("eyeBlinkLeft", ["eyeBlink_L"]), ("mouthSmileRight", ["mouthSmile_R"]),
+                       ("browInnerUp", ["browInnerUp_L", "browInnerUp_R"])]:
+        want = sum(carried[n] for n in ict)
+        assert np.linalg.norm(rig.blendshape(apple) - want) < 0.1 * np.linalg.norm(want), apple
+
+
+def _small_take(path: Path) -> None:
+    from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
+
+    w = np.zeros((20, len(ARKIT_NAMES)))
+    w[:, ARKIT_NAMES.index("JawOpen")] = np.linspace(0, 1, 20)
+    w[5:9, ARKIT_NAMES.index("EyeBlinkLeft")] = 1.0
+    head = np.zeros((20, 3))
+    head[:, 0] = np.linspace(0, 0.3, 20)  # yaw, radians
+    write_arkit_csv(path, w, 30.0, head)
+
+
+def test_arkit_play_writes_glb_csv_and_mp4(tmp_path):
+    from faceanim.io.arkit_csv import read_arkit_csv
+    from faceanim.io.gltf import glb_json
+
+    _small_take(tmp_path / "take.csv")
+    assert run(["arkit", "play", tmp_path / "take.csv", "-o", tmp_path / "t.glb"]) == 0
+    doc = glb_json(tmp_path / "t.glb")
+    assert doc["meshes"][0]["extras"]["targetNames"] == ["eyeBlinkLeft", "jawOpen"]  # the curves that move
+    anim = doc["animations"][0]
+    assert [c["target"]["path"] for c in anim["channels"]] == ["weights", "rotation"]
+    assert doc["accessors"][anim["samplers"][1]["output"]]["count"] == 20
+    assert run(["arkit", "play", tmp_path / "take.csv", "--fps", "60", "-o", tmp_path / "t.csv"]) == 0
+    back = read_arkit_csv(tmp_path / "t.csv")
+    assert back.n_samples == 39  # 19 intervals of 1/30 s at 60 fps
+    np.testing.assert_allclose(back.weights[::2], read_arkit_csv(tmp_path / "take.csv").weights, atol=1e-5)
+    assert run(["arkit", "play", tmp_path / "take.csv", "--size", "128", "--quiet", "-o", tmp_path / "t.mp4"]) == 0
+    assert (tmp_path / "t.mp4").stat().st_size > 0
+
+
+def test_arkit_play_bad_input(tmp_path, capsys):
+    _small_take(tmp_path / "take.csv")
+    (tmp_path / "bad.csv").write_text("Timecode,EyeBlinkLeft\n")
+    (tmp_path / "face.obj").write_text("hello\n")
+    out = tmp_path / "o.glb"
+    for args, phrase in [
+        (["arkit", "play", tmp_path / "none.csv", "-o", out], "does not exist"),
+        (["arkit", "play", tmp_path / "bad.csv", "-o", out], "lacks the column"),
+        (["arkit", "play", tmp_path / "take.csv", "--face", tmp_path / "face.obj", "-o", tmp_path / "o.csv"],
+         "drop --face"),
+        (["arkit", "play", tmp_path / "take.csv", "-o", tmp_path / "take.csv"], "also an input"),
+        (["arkit", "play", tmp_path / "take.csv", "--size", "65", "-o", tmp_path / "o.mp4"], "--size must be even"),
+    ]:
+        before = sorted(tmp_path.iterdir())
+        assert run(args) == 2, args
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and phrase in err, (args, err)
+        assert sorted(tmp_path.iterdir()) == before
+
+
+@needs_take
+def test_the_real_take_on_another_person(tmp_path):
+    """The real take on FaceWarehouse tester 1 (another mesh): at its widest jaw opening the lower
+    lip goes down by over a tenth of the eye distance."""
+    from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
+    from faceanim.rig.arkit import apple_name, arkit_rig
+
+    face = Face.load(DATA / "facewarehouse-tester1" / "pose_0.obj")
+    rig, _ = arkit_rig(face)
+    take = read_arkit_csv(TAKE).resample(10.0)
+    f = int(np.argmax(take.weights[:, ARKIT_NAMES.index("JawOpen")]))
+    curves = take.weights[f:f + 1, [[apple_name(n) for n in ARKIT_NAMES].index(c) for c in rig.controls]]
+    v = rig.evaluate(curves)[0]
+    lower_lip = int(np.argmin(np.linalg.norm(face.mesh.vertices - face.landmarks[17], axis=1)))
+    drop = (face.mesh.vertices[lower_lip] - v[lower_lip]) @ face.frame.rotation[1]
+    assert drop > 0.1 * face.frame.iod
