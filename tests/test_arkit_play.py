@@ -108,3 +108,41 @@ def test_the_real_take_on_another_person(tmp_path):
     lower_lip = int(np.argmin(np.linalg.norm(face.mesh.vertices - face.landmarks[17], axis=1)))
     drop = (face.mesh.vertices[lower_lip] - v[lower_lip]) @ face.frame.rotation[1]
     assert drop > 0.1 * face.frame.iod
+
+
+def test_a_fap_stream_as_arkit_curves_follows_the_jaw():
+    """A FAP stream that opens the jaw, stretches a lip corner and closes a lid, fitted with the
+    face's ARKit shapes: jawOpen follows open_jaw (r > 0.95), the stretch lands on the subject's
+    left mouth corner, the blink on the left eye, and the fit leaves under half of the motion."""
+    from faceanim.face.faps import N_FAPS, FapStream, faps
+    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.player import arkit_from_stream
+    from faceanim.rig.mpeg4 import FapRig
+
+    face = Face.default()
+    rig = FapRig.build(face)
+    idx = {f.name: f.number - 1 for f in faps()}
+    n = 30
+    values = np.zeros((n, N_FAPS))
+    values[:, idx["open_jaw"]] = 600 * np.sin(np.linspace(0, np.pi, n))
+    values[10:20, idx["stretch_l_cornerlip"]] = 300
+    values[20:, idx["close_t_l_eyelid"]] = 600
+    values[20:, idx["close_b_l_eyelid"]] = -150
+    stream = FapStream(values, np.ones_like(values, dtype=bool), 30.0)
+    w, head, residual = arkit_from_stream(face, rig, stream)
+    col = {n: ARKIT_NAMES.index(n) for n in ARKIT_NAMES}
+    assert np.corrcoef(w[:, col["JawOpen"]], values[:, idx["open_jaw"]])[0, 1] > 0.95
+    assert w[10:20, col["MouthStretchLeft"]].mean() > w[10:20, col["MouthStretchRight"]].mean() + 0.1
+    assert w[22:, col["EyeBlinkLeft"]].mean() > w[22:, col["EyeBlinkRight"]].mean() + 0.2
+    assert residual < 0.5 and np.all(head == 0)
+    assert np.all(np.minimum(w[:, col["JawLeft"]], w[:, col["JawRight"]]) == 0)
+
+
+@pytest.mark.skipif(__import__("shutil").which("espeak-ng") is None, reason="espeak-ng is not installed")
+def test_say_writes_live_link_face_csv(tmp_path):
+    from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
+
+    assert run(["say", "Papa, how are you?", "--quiet", "-o", tmp_path / "s.csv"]) == 0
+    take = read_arkit_csv(tmp_path / "s.csv")
+    jaw = take.weights[:, ARKIT_NAMES.index("JawOpen")]
+    assert take.n_samples > 20 and jaw.max() > 0.2 and jaw.min() < 0.1  # the mouth opens and closes

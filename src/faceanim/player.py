@@ -126,3 +126,60 @@ def full_rig(face: Face, extra: dict[str, np.ndarray] | None = None) -> Rig:
         shapes[f"fap_{spec['name']}"] = pose(expression_faps(spec["name"]))
     shapes.update(extra or {})
     return Rig.from_blendshapes(face.mesh, shapes)
+
+
+ARKIT_FIT_VERTICES = 3000  # face vertices the ARKit fit of a FAP stream looks at (evenly spread)
+ARKIT_FIT_RIDGE = 0.01  # the fit's ridge, a share of the shapes' mean squared norm (keeps opposed pairs apart)
+
+
+def arkit_from_stream(face: Face, rig: FapRig, stream: FapStream) -> tuple[np.ndarray, np.ndarray, float]:
+    """A FAP stream as Live Link Face curves for ``face``: per frame, the ARKit weights in [0, 1]
+    whose shapes on this face (:func:`~faceanim.rig.arkit.arkit_rig`) best reproduce the FAP
+    rig's expression (bounded least squares with a small ridge over the visible face: skin inside
+    the face oval turned towards the camera, where both rigs can be compared, not the mouth's
+    inside, which the FAP rig leaves still; the head's rotation is taken apart). Returns ((F, 52) weights in Live Link Face's order, tongueOut 0; (F, 3) head
+    yaw, pitch, roll in radians from FAPs 49, 48, 50; the fit's relative residual, the share of
+    the expression's displacement the ARKit shapes do not reproduce). A left/right pair set at
+    once (``JawLeft`` and ``JawRight``) keeps only its net."""
+    from scipy.optimize import lsq_linear
+
+    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.rig.arkit import apple_name, arkit_rig
+
+    arkit, _ = arkit_rig(face)
+    curves = rig.stream_curves(stream)
+    index = {f.name: f.number - 1 for f in faps()}
+    head = np.stack([curves[:, index[n]] for n in ("head_yaw", "head_pitch", "head_roll")], axis=1) * 1e-5
+    expression = curves.copy()
+    expression[:, [index[n] for n in ("head_yaw", "head_pitch", "head_roll")]] = 0.0
+    from faceanim.face.mesh import vertex_normals
+
+    facing = vertex_normals(face.mesh.vertices, face.mesh.faces) @ face.frame.rotation[2] > 0.3
+    visible = np.flatnonzero(facing & np.asarray(face.skin) & np.asarray(face.face_region))
+    if not len(visible):
+        raise FaceAnimError("the face shows no skin towards the camera to fit ARKit curves on")
+    rows = visible[np.unique(np.linspace(0, len(visible) - 1, min(ARKIT_FIT_VERTICES, len(visible))).astype(int))]
+    a = np.stack([arkit.blendshape(n)[rows].ravel() for n in arkit.controls], axis=1)
+    ridge = np.sqrt(ARKIT_FIT_RIDGE * np.mean(np.sum(a ** 2, axis=0)))
+    a_ridge = np.vstack([a, ridge * np.eye(a.shape[1])])
+    out = np.zeros((len(curves), len(ARKIT_NAMES)))
+    column = [[apple_name(n) for n in ARKIT_NAMES].index(c) for c in arkit.controls]
+    rest = face.mesh.vertices[rows]
+    residual, total = 0.0, 0.0
+    for f0 in range(0, len(curves), CHUNK):
+        frames = rig.evaluate(expression[f0:f0 + CHUNK])[:, rows] - rest
+        for j, d in enumerate(frames):
+            d = d.ravel()
+            if not np.any(d):
+                continue
+            fit = lsq_linear(a_ridge, np.r_[d, np.zeros(a.shape[1])], bounds=(0.0, 1.0), method="bvls")
+            out[f0 + j, column] = fit.x
+            residual += float(np.sum((a @ fit.x - d) ** 2))
+            total += float(np.sum(d ** 2))
+    # opposed directions (jaw or mouth to the left and to the right at once) cancel: keep the net
+    for left, right in (("JawLeft", "JawRight"), ("MouthLeft", "MouthRight")):
+        i, j = ARKIT_NAMES.index(left), ARKIT_NAMES.index(right)
+        common = np.minimum(out[:, i], out[:, j])
+        out[:, i] -= common
+        out[:, j] -= common
+    return out, head, (np.sqrt(residual / total) if total > 0 else 0.0)

@@ -23,7 +23,8 @@ from faceanim.limits import DEFAULT_FPS
 
 
 def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
-    """A FAP stream as .fap, .glb (+ its sound as .wav beside, named in the glb's extras) or .mp4."""
+    """A FAP stream as .fap, .glb (+ its sound as .wav beside, named in the glb's extras), .mp4 or
+    .csv (Live Link Face: ARKit curves fitted to the stream on this face)."""
     from faceanim.io.fapfile import write_fap
     from faceanim.player import gltf_stream, render_stream
 
@@ -31,6 +32,12 @@ def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
     suffix = out.suffix.lower()
     if suffix == ".fap":
         return [write_fap(out, stream)]
+    if suffix == ".csv":
+        from faceanim.io.arkit_csv import write_arkit_csv
+        from faceanim.player import arkit_from_stream
+
+        weights, head, _ = arkit_from_stream(face, rig, stream)
+        return [write_arkit_csv(out, weights, stream.fps, head)]
     if suffix == ".glb":
         from faceanim.io.gltf import sound_companion
 
@@ -209,7 +216,7 @@ def register(sub) -> None:
     sy.add_argument("--intensity", type=INTENSITY, default=0.6, help="intensity of --expression (0..2)")
     sy.add_argument("--voice", default="en-us", help="espeak-ng voice (`espeak-ng --voices` lists them)")
     sy.add_argument("--fps", type=FPS, default=DEFAULT_FPS, help="frames per second (up to 240)")
-    _video_options(sy, [".mp4", ".glb", ".fap"])
+    _video_options(sy, [".mp4", ".glb", ".fap", ".csv"])
     sy.set_defaults(func=_cmd_say)
 
     fp = sub.add_parser("fap", help="MPEG-4 FAP files")
@@ -218,7 +225,7 @@ def register(sub) -> None:
     fpl.add_argument("fap", metavar="FAP", help="the .fap file")
     add_face(fpl, positional=False)
     fpl.add_argument("--audio", metavar="SOUND", help="sound to put under the video (or beside a .glb)")
-    _video_options(fpl, [".mp4", ".glb"])
+    _video_options(fpl, [".mp4", ".glb", ".csv"])
     fpl.set_defaults(func=_cmd_fap_play)
 
     fw = fsub.add_parser("write", help="write a .fap file from an expression, FAP values or text")
@@ -236,7 +243,7 @@ def register(sub) -> None:
                                        "blinks")
     di.add_argument("script", metavar="SCRIPT")
     add_face(di, positional=False, default_help="the script's 'face', else the embedded default face")
-    _video_options(di, [".mp4", ".glb", ".fap"])
+    _video_options(di, [".mp4", ".glb", ".fap", ".csv"])
     di.set_defaults(func=_cmd_direct)
 
 
