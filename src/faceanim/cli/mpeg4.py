@@ -64,9 +64,7 @@ def _cmd_say(args) -> None:
     from faceanim.rig.mpeg4 import FapRig
 
     if (args.text is None) == (args.audio is None):
-        raise CommandError("give the text to say, or --audio clip.wav with --transcript clip.txt")
-    if args.audio and not args.transcript:
-        raise CommandError("--audio needs --transcript (the words spoken in it)")
+        raise CommandError("give the text to say, or --audio clip.wav (with --transcript clip.txt if you have it)")
     voice = None
     if args.text is not None:
         from faceanim.drivers.speech import check_text, check_voice
@@ -88,7 +86,12 @@ def _cmd_say(args) -> None:
             from faceanim.io.files import read_text
 
             wav = Path(args.audio)
-            phones = align(wav, read_text(args.transcript, "transcript"))
+            if args.transcript:
+                phones = align(wav, read_text(args.transcript, "transcript"))
+            else:  # no transcript: the phones as heard
+                from faceanim.drivers.speech import recognise_phones
+
+                phones = recognise_phones(wav)
         else:
             wav = Path(tmp) / "speech.wav"
             phones = say_timed(args.text, wav, voice=voice)
@@ -210,7 +213,8 @@ def register(sub) -> None:
                                     "face; .glb also writes the sound beside it (.wav)")
     sy.add_argument("text", nargs="?", help="what to say (spoken by espeak-ng)")
     sy.add_argument("--audio", metavar="SOUND", help="recorded speech (WAV of any sample format, FLAC, OGG) instead of text")
-    sy.add_argument("--transcript", metavar="TXT", help="text file with the words spoken in --audio")
+    sy.add_argument("--transcript", metavar="TXT", help="text file with the words spoken in --audio (more exact "
+                                                        "timing; without it the phones are recognised from the audio)")
     add_face(sy, positional=False)
     sy.add_argument("--expression", help="an MPEG-4 expression held while speaking (joy, sadness, ...)")
     sy.add_argument("--intensity", type=INTENSITY, default=0.6, help="intensity of --expression (0..2)")

@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 
 SAMPLE_RATE = 16000  # what the pocketsphinx model expects
 FRAME = 0.01  # pocketsphinx frame length, seconds
+SILENT_RMS = 1e-3  # audio quieter than this (RMS, full scale 1) holds no speech to recognise
 
 # espeak-ng speaking rates, words per minute. say_timed speaks one word per espeak-ng call and adds
 # its own gaps and pauses, so it uses espeak-ng's own default rate (175); synthesize speaks a whole
@@ -273,6 +274,54 @@ def align(audio, transcript: str, rate: int | None = None, decoder=None) -> list
     if len(spoken) >= 8 and squeezed > 0.5:
         raise SpeechError(f"{squeezed:.0%} of the phones got the shortest possible duration: the audio "
                           "does not seem to match its transcript")
+    return phones
+
+
+def _samples(audio, rate):
+    if isinstance(audio, (str, Path)):
+        return read_audio(audio)
+    if rate is None:
+        raise SpeechError("give the sample rate of the audio samples")
+    rate = check_rate(rate)
+    x = np.asarray(audio, dtype=np.float32)
+    if x.ndim != 1 or x.size == 0 or not np.all(np.isfinite(x)):
+        raise SpeechError("audio samples must be a non-empty 1-D array of finite numbers")
+    if x.size / rate > MAX_DURATION:
+        raise SpeechError(f"the audio is longer than {MAX_DURATION:g} s; give it in shorter pieces")
+    return x, rate
+
+
+def recognise_phones(audio, rate: int | None = None) -> list[Phone]:
+    """Timed phones heard in ``audio`` with no transcript (what Rhubarb Lip Sync does): the
+    pocketsphinx model decoded in its all-phone mode with the phone-bigram model that ships with it
+    (``en-us-phone.lm.bin``). Less exact than :func:`align` (the words are not known), but the
+    mouth needs only the phone classes and their times."""
+    import os
+
+    import pocketsphinx
+    from pocketsphinx import Decoder
+
+    x, rate = _samples(audio, rate)
+    if float(np.sqrt(np.mean(np.square(x, dtype=np.float64)))) < SILENT_RMS:
+        raise SpeechError("no speech was heard in the audio (it is silent); give a recording of someone speaking")
+    model = Path(os.path.dirname(pocketsphinx.__file__)) / "model" / "en-us"
+    raw = _pcm16_bytes(resample(x, rate, SAMPLE_RATE))
+    try:
+        dec = Decoder(allphone=str(model / "en-us-phone.lm.bin"), lm=None, samprate=SAMPLE_RATE, loglevel="FATAL",
+                      beam=1e-20, pbeam=1e-20, lw=2.0)
+        dec.start_utt()
+        dec.process_raw(raw, full_utt=True)
+        dec.end_utt()
+        segments = list(dec.seg())
+    except (RuntimeError, ValueError) as exc:
+        log.debug("pocketsphinx failed: %s", exc)
+        raise SpeechError("no speech could be recognised in the audio") from None
+    phones = [Phone(seg.word, seg.start_frame * FRAME, (seg.end_frame + 1) * FRAME, "")
+              for seg in segments if seg.word not in ("<s>", "</s>")]
+    phones = [Phone("SIL" if p.phone in ("+NSN+", "+SPN+", "+BREATH+", "+NOISE+") else p.phone, p.start, p.end, "")
+              for p in phones]
+    if not any(p.phone != "SIL" for p in phones):
+        raise SpeechError("no speech was heard in the audio; give a recording of someone speaking")
     return phones
 
 
