@@ -204,8 +204,13 @@ class FapRig(Rig):
         rows, cols, vals = [], [], []
         supported = np.zeros(N_FAPS, dtype=bool)
         unsupported: dict[int, str] = {}
-        _, near = mesh.kdtree.query(np.stack([p for p in fp.positions.values()]))
-        vertex_of = dict(zip(fp.positions, near))
+        # each feature point's nearest *skin* vertex: the FAPs move skin only (a lid's point can
+        # lie nearer the eyeball under it, whose shell the distances along the skin never reach)
+        from scipy.spatial import cKDTree
+
+        skin_rows = np.flatnonzero(on_skin)
+        _, near = cKDTree(mesh.vertices[skin_rows]).query(np.stack([p for p in fp.positions.values()]))
+        vertex_of = dict(zip(fp.positions, skin_rows[near]))
         gaps = _chain_gaps(fp)
         # the brows move the forehead, fading out from the brow down to the eyes' midline (the
         # eyelids have FAPs of their own)
