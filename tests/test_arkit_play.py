@@ -76,10 +76,19 @@ def test_arkit_play_bad_input(tmp_path, capsys):
     _small_take(tmp_path / "take.csv")
     (tmp_path / "bad.csv").write_text("Timecode,EyeBlinkLeft\n")
     (tmp_path / "face.obj").write_text("hello\n")
+    lines = (tmp_path / "take.csv").read_text().splitlines()
+    row = lines[1].split(",")
+    long_rows = []
+    for i in range(3000):  # a sample every 9 s for 7.5 hours: 810,000 frames at 30 fps
+        t = 9 * i
+        row[0] = f"{t // 3600:02d}:{t // 60 % 60:02d}:{t % 60:02d}:00.000"
+        long_rows.append(",".join(row))
+    (tmp_path / "long.csv").write_text("\n".join([lines[0], *long_rows]) + "\n")
     out = tmp_path / "o.glb"
     for args, phrase in [
         (["arkit", "play", tmp_path / "none.csv", "-o", out], "does not exist"),
         (["arkit", "play", tmp_path / "bad.csv", "-o", out], "lacks the column"),
+        (["arkit", "play", tmp_path / "long.csv", "-o", out], "lower --fps or cut the take"),
         (["arkit", "play", tmp_path / "take.csv", "--face", tmp_path / "face.obj", "-o", tmp_path / "o.csv"],
          "drop --face"),
         (["arkit", "play", tmp_path / "take.csv", "-o", tmp_path / "take.csv"], "also an input"),

@@ -113,23 +113,30 @@ def _cmd_mocap_build(args) -> None:
     report([out])
 
 
+def _output(args, inputs, csv_is: str) -> tuple[Path, str]:
+    """The checked output path of a command that writes .glb, .mp4 or .csv of a face, and its
+    suffix: not one of ``inputs`` (or the face or landmarks), writable; a .csv (which ``csv_is``,
+    not a face) refuses --face and --landmarks."""
+    out = Path(args.output)
+    named = [Path(p).resolve() for p in (*inputs, args.face, args.landmarks) if p]
+    if out.resolve() in named:
+        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
+    check_outputs(args.output)
+    suffix = out.suffix.lower()
+    if suffix == ".csv" and (args.face or args.landmarks):
+        raise CommandError(f"a .csv output {csv_is}, not a face: drop --face/--landmarks, or write .glb or .mp4")
+    return out, suffix
+
+
 def _cmd_perform(args) -> None:
     from faceanim.build.motion import load_database
     from faceanim.drivers.video.tracking import track_frames
     from faceanim.io.video import video_frames, video_info
     from faceanim.perform import default_database, perform, write_performance
 
-    out = Path(args.output)
-    inputs = [Path(p).resolve() for p in (args.video, args.db, args.face, args.landmarks) if p]
-    if out.resolve() in inputs:
-        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
-    check_outputs(args.output)
+    out, suffix = _output(args, [args.video, args.db], "holds ARKit curves")
     if args.overlap > args.window:
         raise CommandError(f"--overlap ({args.overlap}) cannot exceed --window ({args.window})")
-    suffix = out.suffix.lower()
-    if suffix == ".csv" and (args.face or args.landmarks):
-        raise CommandError("a .csv output holds ARKit curves, not a face: drop --face/--landmarks, or write "
-                           ".glb or .mp4")
     info = video_info(args.video)
     if suffix == ".mp4":
         from faceanim.limits import check_video
@@ -160,22 +167,17 @@ def _cmd_arkit_play(args) -> None:
     from faceanim.io.arkit_csv import read_arkit_csv
     from faceanim.perform import write_take
 
-    out = Path(args.output)
-    inputs = [Path(p).resolve() for p in (args.take, args.face, args.landmarks) if p]
-    if out.resolve() in inputs:
-        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
-    check_outputs(args.output)
-    suffix = out.suffix.lower()
-    if suffix == ".csv" and (args.face or args.landmarks):
-        raise CommandError("a .csv output is the take itself, not a face: drop --face/--landmarks, or write "
-                           ".glb or .mp4")
+    out, suffix = _output(args, [args.take], "is the take itself")
     take = read_arkit_csv(args.take)
+    n = int(take.duration * args.fps) + 1
+    if n > MAX_FRAMES:
+        raise CommandError(f"the take lasts {take.duration:.0f} s: {n} frames at {args.fps:g} fps, more than "
+                           f"{MAX_FRAMES}; lower --fps or cut the take")
     if suffix == ".mp4":
         from faceanim.limits import check_video
 
-        check_video(int(take.duration * args.fps) + 1, args.size, args.size)
+        check_video(n, args.size, args.size)
     face = load_face(args) if suffix != ".csv" else None
-    n = int(take.duration * args.fps) + 1
     with progress(n if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
         written = write_take(out, take, face, args.fps, args.size, bar)
     print(f"{n} frames ({take.duration:.1f} s) of the take at {args.fps:g} fps")

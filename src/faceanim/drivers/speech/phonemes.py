@@ -221,20 +221,25 @@ def _pcm16_bytes(x: np.ndarray) -> bytes:
     return (np.clip(x, -1, 1) * 32767).astype("<i2").tobytes()
 
 
+def _samples(audio, rate) -> tuple[np.ndarray, int]:
+    """Samples and rate of ``audio``: an audio file (WAV, FLAC, OGG, ...) or samples with ``rate``."""
+    if isinstance(audio, (str, Path)):
+        return read_audio(audio)
+    if rate is None:
+        raise SpeechError("give the sample rate of the audio samples")
+    rate = check_rate(rate)
+    x = np.asarray(audio, dtype=np.float32)
+    if x.ndim != 1 or x.size == 0 or not np.all(np.isfinite(x)):
+        raise SpeechError("audio samples must be a non-empty 1-D array of finite numbers")
+    if x.size / rate > MAX_DURATION:
+        raise SpeechError(f"the audio is longer than {MAX_DURATION:g} s; give it in shorter pieces")
+    return x, rate
+
+
 def align(audio, transcript: str, rate: int | None = None, decoder=None) -> list[Phone]:
     """Timed phones of ``transcript`` in ``audio`` (an audio file - WAV, FLAC, OGG, ... - or samples
     with their ``rate``); ``decoder`` reuses a pocketsphinx decoder (loading the model takes ~0.3 s)."""
-    if isinstance(audio, (str, Path)):
-        x, rate = read_audio(audio)
-    else:
-        if rate is None:
-            raise SpeechError("give the sample rate of the audio samples")
-        rate = check_rate(rate)
-        x = np.asarray(audio, dtype=np.float32)
-        if x.ndim != 1 or x.size == 0 or not np.all(np.isfinite(x)):
-            raise SpeechError("audio samples must be a non-empty 1-D array of finite numbers")
-        if x.size / rate > MAX_DURATION:
-            raise SpeechError(f"the audio is longer than {MAX_DURATION:g} s; align it in shorter pieces")
+    x, rate = _samples(audio, rate)
     words = words_of(transcript, "the transcript")
     dec = decoder or _decoder()
     unknown = [w for w in dict.fromkeys(words) if dec.lookup_word(w) is None]
@@ -275,20 +280,6 @@ def align(audio, transcript: str, rate: int | None = None, decoder=None) -> list
         raise SpeechError(f"{squeezed:.0%} of the phones got the shortest possible duration: the audio "
                           "does not seem to match its transcript")
     return phones
-
-
-def _samples(audio, rate):
-    if isinstance(audio, (str, Path)):
-        return read_audio(audio)
-    if rate is None:
-        raise SpeechError("give the sample rate of the audio samples")
-    rate = check_rate(rate)
-    x = np.asarray(audio, dtype=np.float32)
-    if x.ndim != 1 or x.size == 0 or not np.all(np.isfinite(x)):
-        raise SpeechError("audio samples must be a non-empty 1-D array of finite numbers")
-    if x.size / rate > MAX_DURATION:
-        raise SpeechError(f"the audio is longer than {MAX_DURATION:g} s; give it in shorter pieces")
-    return x, rate
 
 
 def recognise_phones(audio, rate: int | None = None) -> list[Phone]:
