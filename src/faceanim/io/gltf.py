@@ -157,6 +157,31 @@ def write_gltf(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np
                pivot: np.ndarray | None = None) -> Path:
     """Write ``mesh`` as GLB with optional morph targets and a morph-weight animation.
 
+    The parameters are :func:`build_gltf`'s; the file is written atomically (see
+    :func:`faceanim.io.files.atomic_output`)."""
+    gltf = build_gltf(mesh, blendshapes, times, weights, animation_name, quantize=quantize, extras=extras,
+                      rotations=rotations, pivot=pivot)
+    return save_glb(gltf, path)
+
+
+def save_glb(gltf: g.GLTF2, path: str | os.PathLike) -> Path:
+    """Write a document made by :func:`build_gltf` (its binary blob set) to ``path`` atomically."""
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        gltf.save_binary(str(tmp))
+    return path
+
+
+def build_gltf(mesh: Mesh, blendshapes: Mapping[str, np.ndarray] | None = None,
+               times: np.ndarray | None = None, weights: np.ndarray | None = None,
+               animation_name: str = "expressions", *, quantize: bool = False,
+               extras: dict | None = None, rotations: np.ndarray | None = None,
+               pivot: np.ndarray | None = None) -> g.GLTF2:
+    """The glTF document :func:`write_gltf` writes, with its binary blob set: node 0 holds mesh 0
+    (one primitive), the scene's root is node 0 (or, with ``rotations``, the ``head`` node
+    above it); writers of glTF-based formats (:mod:`faceanim.io.vrm`) add their nodes and
+    extensions to it and write it with :func:`save_glb`.
+
     Parameters
     ----------
     blendshapes : name -> (V, 3) vertex displacement
@@ -169,7 +194,6 @@ def write_gltf(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np
         (3,), animated on a parent node ``head`` at the pivot (the mesh keeps its coordinates: a
         child node takes the pivot off again)
     """
-    path = Path(path)
     blendshapes = dict(blendshapes or {})
     names = list(blendshapes)
     for name, d in blendshapes.items():
@@ -307,9 +331,7 @@ def write_gltf(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np
     gltf.bufferViews = buf.views
     gltf.accessors = buf.accessors
     gltf.set_binary_blob(bytes(buf.data))
-    with atomic_output(path) as tmp:
-        gltf.save_binary(str(tmp))
-    return path
+    return gltf
 
 
 def glb_json(path: str | os.PathLike, limit: int = 64 << 20) -> dict | None:
