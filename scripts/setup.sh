@@ -11,7 +11,7 @@
 #       npm conflicts with it)
 #     python3 with venv, required, only when there is no usable .venv and no usable python3
 #   .venv: a virtual environment with faceanim installed from this checkout (required)
-#   tools/node_modules: the Khronos glTF validator, with npm (optional)
+#   tools/node_modules: the Khronos glTF validator and three-vrm, with npm (optional)
 #
 # A required part that cannot be had stops the script with an error; an optional one prints one
 # note saying what will be skipped, and the script goes on.
@@ -230,11 +230,12 @@ fi
   || die "pip could not install faceanim and its test dependencies into .venv (.venv/bin/python -m pip install -e '.[test]'); see pip's messages above"
 
 # ---------------------------------------------------------------------------------------------
-# The Khronos glTF validator (optional), pinned in tools/package.json.
+# The Khronos glTF validator and three.js with three-vrm (optional), pinned in tools/package.json;
+# installed when a pin is missing or at another version (npm ls fails).
 # ---------------------------------------------------------------------------------------------
-if [ ! -d tools/node_modules/gltf-validator ] && have node && have npm; then
-  say "installing the glTF validator into tools/ (npm)"
+if have node && have npm && ! npm ls --prefix tools >/dev/null 2>&1; then
+  say "installing the glTF validator and three-vrm into tools/ (npm)"
   npm install --prefix tools --no-audit --no-fund --silent >/dev/null 2>&1 \
-    || note "could not install the glTF validator (npm install --prefix tools); its test will be skipped"
+    || note "could not install the glTF validator and three-vrm (npm install --prefix tools); their tests will be skipped"
 fi
 say "ready (.venv)"
