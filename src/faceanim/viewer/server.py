@@ -1,0 +1,358 @@
+"""The viewer's local web server: the page, three.js, one model, its sound, the photos; nothing else.
+
+Bound to 127.0.0.1 only. It serves, by fixed routes and never by a path from the request:
+
+- ``/`` the page and ``/app/NAME`` its own files (a fixed list);
+- ``/vendor/PATH`` files of the npm packages installed beside the page (``static/node_modules``,
+  three.js and three-vrm), only inside that folder, only ``.js``/``.wasm`` files;
+- ``/model`` the one model file, ``/sound`` the sound its scene extras name (a ``.wav`` beside it),
+  ``/photo/N`` the photos given with ``--photo``;
+- ``/api/info`` what the page needs to know (slider groups, sound, photos, point names) and
+  ``POST /api/points`` the picked points, checked as the commands read them and written to the
+  ``--save-points`` file (the only file it writes).
+
+Requests whose ``Host`` is not this server's own address (DNS rebinding) and posts from another
+origin are refused.
+"""
+
+from __future__ import annotations
+
+import json
+import mimetypes
+import os
+import threading
+from dataclasses import dataclass, field
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from urllib.parse import unquote, urlsplit
+
+from faceanim.errors import FaceAnimError, shown
+
+STATIC = Path(__file__).resolve().parent / "static"
+VENDOR = STATIC / "node_modules"
+APP_FILES = ("index.html", "viewer.js", "viewer.css")
+VENDOR_SUFFIXES = (".js", ".wasm")
+MODEL_SUFFIXES = (".glb", ".vrm")
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")
+MAX_PHOTOS = len(("front", "side", "side2"))
+MAX_MODEL_BYTES = 2 << 30
+MAX_POST_BYTES = 8 << 20
+HOST = "127.0.0.1"
+DEFAULT_PORT = 8760
+PATH_SHOWN = 80
+
+
+class ViewerError(FaceAnimError):
+    """The viewer cannot start: its model, photos, packages or port."""
+
+
+def install_hint() -> str:
+    return f"npm install --prefix {STATIC}"
+
+
+def check_vendor(vrm: bool = False) -> None:
+    """three.js (and for a VRM three-vrm) must be installed beside the page."""
+    need = ["three/build/three.module.js"] + (["@pixiv/three-vrm/lib/three-vrm.module.js"] if vrm else [])
+    missing = [n.split("/lib/")[0].split("/build/")[0] for n in need if not (VENDOR / n).is_file()]
+    if missing:
+        raise ViewerError(f"the viewer's browser packages ({', '.join(missing)}) are not installed; run "
+                          f"'{install_hint()}' (bash scripts/setup.sh does it when npm is there)")
+
+
+@dataclass
+class Model:
+    """A model file checked for serving: its path, kind (``glb`` or ``vrm``), glTF JSON and sound."""
+
+    path: Path
+    kind: str
+    doc: dict
+    sound: Path | None = None
+    extras: dict = field(default_factory=dict)
+
+
+def _named(path) -> str:
+    return shown(path, PATH_SHOWN, tail=True)
+
+
+def check_model(path: str | os.PathLike) -> Model:
+    """The model file, refused with one line when it cannot be served: missing, a folder,
+    unreadable, not a ``.glb``/``.vrm``, not a GLB (damaged, truncated), a GLB that refers to
+    other files, a ``.vrm`` without a VRM extension."""
+    from faceanim.io.files import check_input_file
+    from faceanim.io.gltf import glb_json
+    from faceanim.viewer.groups import scene_extras
+
+    p = check_input_file(path, "model", "a .glb or .vrm file")
+    name = _named(p)
+    if p.suffix.lower() not in MODEL_SUFFIXES:
+        raise ViewerError(f"model '{name}' is not a .glb or .vrm file; give one (OBJ, PLY and glTF: convert "
+                          "with faceanim deform or another tool to .glb first)")
+    try:
+        size = p.stat().st_size
+        with open(p, "rb") as fh:
+            head = fh.read(12)
+    except OSError as exc:
+        raise ViewerError(f"cannot read model '{name}': {exc.strerror or exc}; check its permissions") from None
+    if size > MAX_MODEL_BYTES:
+        raise ViewerError(f"model '{name}' is {size / 2**30:.1f} GB; the viewer takes files up to "
+                          f"{MAX_MODEL_BYTES >> 30} GB")
+    doc = glb_json(p)
+    if doc is None or len(head) < 12 or int.from_bytes(head[8:12], "little") != size:
+        raise ViewerError(f"model '{name}' is not a valid GLB file (damaged, truncated or another format); "
+                          "export it again as .glb")
+    for key in ("buffers", "images"):
+        for item in doc.get(key) or []:
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if isinstance(uri, str) and not uri.startswith("data:"):
+                raise ViewerError(f"model '{name}' refers to another file ({key}: '{shown(uri)}'); the viewer "
+                                  "serves the one file: give a self-contained .glb")
+    extensions = doc.get("extensionsUsed") or []
+    vrm = isinstance(extensions, list) and ("VRMC_vrm" in extensions or "VRM" in extensions) \
+        or isinstance(doc.get("extensions"), dict) and ({"VRMC_vrm", "VRM"} & set(doc["extensions"]))
+    if p.suffix.lower() == ".vrm" and not vrm:
+        raise ViewerError(f"model '{name}' has no VRM extension (VRMC_vrm or VRM); give a VRM file, or a "
+                          "glTF binary named .glb")
+    extras = scene_extras(doc)
+    return Model(p, "vrm" if vrm else "glb", doc, _sound(p, extras), extras)
+
+
+def _sound(model: Path, extras: dict) -> Path | None:
+    """The sound an animated GLB names in its scene extras (a .wav beside it), if it is there."""
+    named = extras.get("audio")
+    if not isinstance(named, str) or Path(named).name != named or not named.lower().endswith(".wav"):
+        return None
+    wav = model.with_name(named)
+    return wav if wav.is_file() else None
+
+
+@dataclass
+class Photo:
+    path: Path
+    width: int
+    height: int
+
+
+def check_photo(path: str | os.PathLike) -> Photo:
+    """A photo to pick points on: a JPEG or PNG the photo command reads; its upright size."""
+    from faceanim.build.photo import read_photo
+
+    p = Path(path)
+    if p.suffix.lower() not in PHOTO_SUFFIXES:
+        raise ViewerError(f"photo '{_named(p)}' is not a .jpg or .png file; give the photo you pass to "
+                          "faceanim photo")
+    rgb = read_photo(p, "photo")
+    return Photo(p, int(rgb.shape[1]), int(rgb.shape[0]))
+
+
+class Viewer:
+    """What one ``faceanim view`` serves: the model, its photos, where points are saved."""
+
+    def __init__(self, model: Model, photos: list[Photo] | None = None, save_points: Path | None = None):
+        self.model = model
+        self.photos = list(photos or [])
+        self.save_points = save_points
+        self.lock = threading.Lock()
+        self.saved = 0
+
+    def info(self) -> dict:
+        from faceanim.viewer.groups import group_targets, target_names
+        from faceanim.viewer.points import point_names
+
+        names = target_names(self.model.doc)
+        return {
+            "model": {"name": self.model.path.name, "kind": self.model.kind, "url": "/model",
+                      "size": self.model.path.stat().st_size},
+            "groups": group_targets(names, self.model.extras.get("morph_sets")),
+            "sound": {"name": self.model.sound.name, "url": "/sound"} if self.model.sound else None,
+            "photos": [{"name": ph.path.name, "url": f"/photo/{k}", "width": ph.width, "height": ph.height}
+                       for k, ph in enumerate(self.photos)],
+            "save_points": str(self.save_points) if self.save_points else None,
+            "names": point_names(),
+        }
+
+    def save(self, body: object) -> dict:
+        """Check posted points as the command that reads them does and write them to
+        ``--save-points``; returns what the page shows."""
+        from faceanim.io.files import write_json
+        from faceanim.viewer.points import PHOTO_VIEWS, PointsError, check_landmarks, check_photo_points
+
+        if not isinstance(body, dict) or body.get("kind") not in ("landmarks", "photo"):
+            raise PointsError('send {"kind": "landmarks" or "photo", "data": {...}}')
+        data = body.get("data")
+        if body["kind"] == "landmarks":
+            check_landmarks(data)
+        else:
+            views = body.get("views")  # view name -> photo number
+            if not isinstance(views, dict) or not all(
+                    k in PHOTO_VIEWS and type(v) is int and 0 <= v < len(self.photos) for k, v in views.items()):
+                raise PointsError("each view (front, side, side2) must name one of the photos")
+            check_photo_points(data, {k: (self.photos[v].width, self.photos[v].height) for k, v in views.items()})
+        if self.save_points is None:
+            return {"saved": None, "message": "checked; not written on disk (start faceanim view with "
+                                              "--save-points PATH to write it there)"}
+        with self.lock:
+            write_json(self.save_points, data)
+            self.saved += 1
+        return {"saved": str(self.save_points), "message": f"saved to {self.save_points}"}
+
+
+class _Handler(BaseHTTPRequestHandler):
+    server_version = "faceanim-view"
+    sys_version = ""
+    protocol_version = "HTTP/1.1"
+
+    @property
+    def viewer(self) -> Viewer:
+        return self.server.viewer  # type: ignore[attr-defined]
+
+    def log_message(self, format, *args):  # noqa: A002 -- quiet: the terminal shows the URL only
+        pass
+
+    # ------------------------------------------------------------------ helpers
+    def _own_host(self) -> bool:
+        port = self.server.server_address[1]
+        return self.headers.get("Host", "") in (f"{HOST}:{port}", f"localhost:{port}")
+
+    def _send(self, status: int, body: bytes, ctype: str, cache: bool = False, head: bool = False) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "max-age=3600" if cache else "no-store")
+        self.send_header("X-Content-Type-Options", "nosniff")
+        self.send_header("Cross-Origin-Resource-Policy", "same-origin")
+        self.end_headers()
+        if not head:
+            self.wfile.write(body)
+
+    def _json(self, status: int, obj) -> None:
+        self._send(status, json.dumps(obj).encode(), "application/json")
+
+    def _error(self, status: int, message: str) -> None:
+        self._json(status, {"error": message})
+
+    def _file(self, path: Path, ctype: str | None = None, cache: bool = False, head: bool = False) -> None:
+        try:
+            with open(path, "rb") as fh:
+                body = fh.read()
+        except OSError:
+            self._error(HTTPStatus.NOT_FOUND, "not found")
+            return
+        if ctype is None:
+            ctype = {".js": "text/javascript", ".wasm": "application/wasm", ".html": "text/html; charset=utf-8",
+                     ".css": "text/css", ".wav": "audio/wav", ".glb": "model/gltf-binary",
+                     ".vrm": "model/gltf-binary"}.get(path.suffix.lower()) \
+                or mimetypes.guess_type(path.name)[0] or "application/octet-stream"
+        self._send(HTTPStatus.OK, body, ctype, cache=cache, head=head)
+
+    def _vendor_file(self, rel: str) -> Path | None:
+        """A file of the installed npm packages, or None: every segment a plain name, the
+        resolved file inside the vendor folder, with an allowed suffix."""
+        parts = rel.split("/")
+        if not rel or any(s in ("", ".", "..") or "\\" in s or "\0" in s or s.startswith(".") for s in parts):
+            return None
+        root = VENDOR.resolve()
+        try:
+            target = (root / rel).resolve()
+        except (OSError, RuntimeError):
+            return None
+        if not target.is_relative_to(root) or target.suffix.lower() not in VENDOR_SUFFIXES \
+                or not target.is_file():
+            return None
+        return target
+
+    # ------------------------------------------------------------------ routes
+    def do_HEAD(self):  # noqa: N802
+        self.do_GET(head=True)
+
+    def do_GET(self, head: bool = False):  # noqa: N802
+        if not self._own_host():
+            self._error(HTTPStatus.FORBIDDEN, "unknown host")
+            return
+        raw = urlsplit(self.path).path
+        path = unquote(raw)
+        v = self.viewer
+        if path in ("/", "/index.html"):
+            self._file(STATIC / "index.html", head=head)
+        elif path.startswith("/app/") and path[5:] in APP_FILES:
+            self._file(STATIC / path[5:], head=head)
+        elif path.startswith("/vendor/"):
+            target = self._vendor_file(path[len("/vendor/"):])
+            if target is None:
+                self._error(HTTPStatus.NOT_FOUND, "not found")
+            else:
+                self._file(target, cache=True, head=head)
+        elif path == "/model":
+            self._file(v.model.path, "model/gltf-binary", head=head)
+        elif path == "/sound" and v.model.sound is not None:
+            self._file(v.model.sound, "audio/wav", head=head)
+        elif path.startswith("/photo/") and path[7:].isdigit() and int(path[7:]) < len(v.photos):
+            photo = v.photos[int(path[7:])].path
+            self._file(photo, "image/png" if photo.suffix.lower() == ".png" else "image/jpeg", head=head)
+        elif path == "/api/info":
+            self._json(HTTPStatus.OK, v.info())
+        elif path == "/favicon.ico":
+            self._send(HTTPStatus.NO_CONTENT, b"", "image/x-icon", head=True)
+        else:
+            self._error(HTTPStatus.NOT_FOUND, "not found")
+
+    def do_POST(self):  # noqa: N802
+        from faceanim.viewer.points import PointsError
+
+        port = self.server.server_address[1]
+        origin = self.headers.get("Origin")
+        if not self._own_host() or (origin is not None and origin not in (f"http://{HOST}:{port}",
+                                                                          f"http://localhost:{port}")):
+            self._error(HTTPStatus.FORBIDDEN, "posts come from the viewer's own page only")
+            return
+        if urlsplit(self.path).path != "/api/points":
+            self._error(HTTPStatus.NOT_FOUND, "not found")
+            return
+        if self.headers.get("Content-Type", "").split(";")[0].strip() != "application/json":
+            self._error(HTTPStatus.UNSUPPORTED_MEDIA_TYPE, "send application/json")
+            return
+        try:
+            length = int(self.headers.get("Content-Length", ""))
+        except ValueError:
+            self._error(HTTPStatus.LENGTH_REQUIRED, "give Content-Length")
+            return
+        if not 0 < length <= MAX_POST_BYTES:
+            self.close_connection = True
+            self._error(HTTPStatus.REQUEST_ENTITY_TOO_LARGE, f"send 1..{MAX_POST_BYTES} bytes")
+            return
+        try:
+            body = json.loads(self.rfile.read(length))
+        except (ValueError, RecursionError):
+            self._error(HTTPStatus.BAD_REQUEST, "the body is not JSON")
+            return
+        try:
+            self._json(HTTPStatus.OK, self.viewer.save(body))
+        except PointsError as exc:
+            self._error(HTTPStatus.BAD_REQUEST, str(exc))
+        except FaceAnimError as exc:  # the file could not be written
+            self._error(HTTPStatus.INTERNAL_SERVER_ERROR, str(exc))
+
+
+class ViewerServer(ThreadingHTTPServer):
+    daemon_threads = True
+    allow_reuse_address = True  # SO_REUSEADDR: a restart may take a port in TIME_WAIT; a listening port is still refused
+
+    def __init__(self, viewer: Viewer, port: int = DEFAULT_PORT):
+        self.viewer = viewer
+        try:
+            super().__init__((HOST, port), _Handler)
+        except OSError as exc:
+            import errno
+
+            if exc.errno == errno.EADDRINUSE:
+                raise ViewerError(f"port {port} on {HOST} is in use (another faceanim view or server?); give "
+                                  "another with --port P, or --port 0 for any free port") from None
+            if exc.errno == errno.EACCES:
+                raise ViewerError(f"port {port} needs special rights here; give a port from 1024 to 65535 "
+                                  "with --port P") from None
+            raise ViewerError(f"cannot listen on {HOST}:{port} ({exc.strerror or exc}); give another --port") \
+                from None
+
+    @property
+    def url(self) -> str:
+        return f"http://{HOST}:{self.server_address[1]}/"
