@@ -13,7 +13,7 @@ import re
 import sys
 from pathlib import Path
 
-from faceanim.cli import facs, mesh, mpeg4, photo, video, view, wires
+from faceanim.cli import facs, mesh, mpeg4, photo, rig, video, view, wires
 from faceanim.cli.common import (
     DEFAULT_SIZE,
     FPS,
@@ -87,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=_cmd_demo)
     photo.register(sub)
     video.register(sub)
-    for group in (mesh, facs, wires, mpeg4, view):
+    for group in (mesh, rig, facs, wires, mpeg4, view):
         group.register(sub)
     for action in sub.choices.values():
         _defaults_everywhere(action, fmt)

@@ -159,7 +159,51 @@ def correspondence(face: Face, head: GenericHead | None = None,
         mine = np.flatnonzero(group.ravel() == g)
         t, b = _closest_on(src.vertices, src.faces[pool], moved[mine])
         tri[mine], bary[mine] = pool[t], b
+    # a separate piece (eyelashes, a lid's tear line, one tooth) onto its own piece: the closest
+    # point alone lands an eyelash on the eyeball just under it, which does not blink
+    scale = float(np.linalg.norm(src_lm[LEFT_EYE_CORNERS].mean(0) - src_lm[RIGHT_EYE_CORNERS].mean(0)))
+    for mine, pool in _matching_shells(face.mesh, moved, ~tgt_skin, src, ~src_skin, SHELL_MATCH * scale):
+        t, b = _closest_on(src.vertices, src.faces[pool], moved[mine])
+        tri[mine], bary[mine] = pool[t], b
     return tri, bary
+
+
+SHELL_MATCH = 0.05  # a target piece matches a source piece this close in centre and size (IODs)
+LEFT_EYE_CORNERS, RIGHT_EYE_CORNERS = [263, 362], [33, 133]  # MediaPipe's eye corners
+
+
+def _shells(mesh, vertices: np.ndarray, off_skin: np.ndarray):
+    """The connected pieces made only of off-skin triangles: (triangles per piece, vertices per
+    piece, centre (P, 3), RMS radius (P,)) with ``vertices`` as the positions."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    f = mesh.faces
+    keep = np.flatnonzero(off_skin[f].all(axis=1))
+    n = mesh.n_vertices
+    rows = np.concatenate([f[keep, 0], f[keep, 1]])
+    cols = np.concatenate([f[keep, 1], f[keep, 2]])
+    _, label = connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)), directed=False)
+    tri_label = label[f[keep, 0]]
+    pieces = np.unique(tri_label)
+    tris = [keep[tri_label == p] for p in pieces]
+    verts = [np.unique(f[t]) for t in tris]
+    centre = np.array([vertices[v].mean(0) for v in verts]).reshape(-1, 3)
+    radius = np.array([np.sqrt(np.mean(np.sum((vertices[v] - c) ** 2, axis=1))) for v, c in zip(verts, centre)])
+    return tris, verts, centre, radius
+
+
+def _matching_shells(target, moved: np.ndarray, tgt_off: np.ndarray, src, src_off: np.ndarray, tolerance: float):
+    """Pairs (target vertices, source triangles) of each target piece off the skin whose centre
+    (carried into the source's space, ``moved``) and size both come within ``tolerance`` of one
+    source piece's: the piece it is (many target pieces may match one source piece)."""
+    _, t_verts, t_centre, t_radius = _shells(target, moved, tgt_off)
+    s_tris, _, s_centre, s_radius = _shells(src, src.vertices, src_off)
+    if not len(t_verts) or not len(s_tris):
+        return []
+    score = np.linalg.norm(t_centre[:, None] - s_centre[None], axis=2) + np.abs(t_radius[:, None] - s_radius[None])
+    best = np.argmin(score, axis=1)
+    return [(t_verts[k], s_tris[best[k]]) for k in range(len(t_verts)) if score[k, best[k]] < tolerance]
 
 
 def jacobians(f, points: np.ndarray, step: float) -> np.ndarray:

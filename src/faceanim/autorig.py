@@ -1,0 +1,248 @@
+"""One-command rig: any face mesh in, every control faceanim has written as named morph targets
+out (``faceanim rig``), in the names avatar tools use.
+
+The sets (:data:`RIG_SETS`), each built from the input mesh and its landmarks alone:
+
+- ``arkit``: Apple ARKit's blendshapes with Apple's exact names (``eyeBlinkLeft`` ... ; Left and
+  Right are the subject's own sides). Displacement patterns learned from ICT FaceKit's
+  artist-made ARKit shapes (the generic head) are carried onto the face by the retargeting of
+  :mod:`faceanim.rig.performance` (landmark spline, dense correspondence part by part, motion
+  turned by the spline's Jacobian): no shape is copied, every displacement is rebuilt on the
+  face's own surface. The ``eyeLook*`` shapes also turn the eyeballs when the mesh has them
+  (ICT's own move only the lids): by the angles a real Live Link Face take records for a look
+  curve at 1 (:data:`LOOK_ANGLES`). ``tongueOut`` has no learned pattern (ICT has no such shape):
+  it is left out and reported.
+- ``visemes``: the 15 Oculus visemes (``viseme_sil`` ... ``viseme_U``), which are MPEG-4's
+  visemes 0-14, posed by the face's FAP rig (jaw hinge included).
+- ``au``: FACS action units, each with its one-sided halves (Erdogdu's control points, the AU
+  library learned from real scans).
+- ``emotions``: the six basic emotions (``joy`` ... ``disgust``) as AU combinations.
+- ``fap``: every MPEG-4 FAP the face supports (its name, e.g. ``open_jaw``), at the largest
+  value faceanim's viseme and expression tables use.
+
+:func:`vrm_expressions` binds VRM 1.0's expression presets to these targets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from faceanim.errors import FaceAnimError
+from faceanim.face.face import Face
+from faceanim.rig.rig import Rig
+
+RIG_SETS = ("arkit", "visemes", "au", "emotions", "fap")
+
+# Oculus' 15 visemes are MPEG-4's visemes 0..14, in order
+OCULUS_VISEMES = ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "I", "O", "U")
+
+# radians an eyeball turns at look weight 1: the Live Link Face take in ../shared/data/arkit-curves,
+# its eye yaw/pitch regressed on the look curves (r = 0.999 yaw, 0.996 pitch; both eyes agree to 0.01)
+LOOK_ANGLES = {"Out": 0.58, "In": 0.63, "Up": 0.45, "Down": 0.62}
+
+EMOTIONS = ("joy", "sadness", "surprise", "fear", "anger", "disgust")
+
+# values a FAP takes at weight 1 when faceanim's tables never use it: a fifth of a FAPU x 1024
+# for a displacement, 0.3 rad for an angle
+FAP_DISTANCE_DEFAULT, FAP_ANGLE_DEFAULT = 200.0, 30000.0
+HEAD_FAPS = ("head_pitch", "head_yaw", "head_roll")  # the whole head turning: a node's rotation, not a shape
+
+
+@dataclass
+class AutoRig:
+    """A face's generated controls: ``shapes`` name -> (V, 3) displacement at weight 1, ``sets``
+    set name -> its names (in order), ``skipped`` name -> why it could not be made on this face,
+    ``eyes`` whether the mesh has eyeballs faceanim turns."""
+
+    face: Face
+    shapes: dict[str, np.ndarray]
+    sets: dict[str, list[str]]
+    skipped: dict[str, str] = field(default_factory=dict)
+    eyes: bool = False
+
+    def rig(self) -> Rig:
+        return Rig.from_blendshapes(self.face.mesh, self.shapes)
+
+
+def parse_sets(text: str) -> list[str]:
+    """``"arkit,visemes"`` -> the sets in :data:`RIG_SETS` order; ``all`` for every set."""
+    asked = [s.strip().lower() for s in str(text).split(",") if s.strip()]
+    if not asked:
+        raise FaceAnimError(f"--set is empty; give one or more of: {', '.join(RIG_SETS)} (or all)")
+    if "all" in asked:
+        return list(RIG_SETS)
+    unknown = [s for s in asked if s not in RIG_SETS]
+    if unknown:
+        raise FaceAnimError(f"unknown rig set '{unknown[0]}'; choose from: {', '.join(RIG_SETS)} (or all)")
+    return [s for s in RIG_SETS if s in asked]
+
+
+def _turn(points: np.ndarray, centre: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """Displacement of ``points`` turned by ``angle`` about the line through ``centre`` along the
+    unit ``axis`` (Rodrigues)."""
+    from scipy.spatial.transform import Rotation
+
+    r = Rotation.from_rotvec(axis * angle).as_matrix()
+    return (points - centre) @ r.T + centre - points
+
+
+def _look_shapes(face: Face, eyes: dict) -> dict[str, np.ndarray]:
+    """The eyeballs' part of the eight ``eyeLook*`` shapes: each eyeball turned about its centre
+    in the face's own axes (x to the subject's left, y up, z forward)."""
+    right, up, forward = face.frame.rotation
+    v = face.mesh.vertices
+    out = {}
+    for side, word in (("L", "Left"), ("R", "Right")):
+        if eyes.get(side) is None:
+            continue
+        rows, centre = eyes[side]
+        outward = right if side == "L" else -right  # the subject's left eye looks out to its left
+        # the direction the pupil moves, and the axis that turns forward into it
+        for look, towards in (("Out", outward), ("In", -outward), ("Up", up), ("Down", -up)):
+            axis = np.cross(forward, towards)
+            d = np.zeros_like(v)
+            d[rows] = _turn(v[rows], centre, axis / np.linalg.norm(axis), LOOK_ANGLES[look])
+            out[f"eyeLook{look}{word}"] = d
+    return out
+
+
+def arkit_shapes(face: Face, eyes: dict) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """ARKit's shapes on ``face`` (module docstring) and the ones it cannot make, with why."""
+    from faceanim.rig.arkit import arkit_rig
+
+    rig, missing = arkit_rig(face)
+    shapes = {n: rig.blendshape(n) for n in rig.controls}
+    for name, d in _look_shapes(face, eyes).items():
+        shapes[name] = shapes[name] + d
+    skipped = {n: "no learned pattern (ICT FaceKit has no such shape)" for n in missing}
+    return shapes, skipped
+
+
+def _fap_scales() -> dict[int, float]:
+    """Per FAP number: the largest |value| faceanim's viseme and expression tables give it."""
+    from faceanim.drivers.mpeg4 import fap_set, viseme_table
+
+    table = viseme_table()
+    out: dict[int, float] = {}
+    for spec in list(table["visemes"].values()) + list(table["expressions"].values()):
+        for number, value in fap_set(spec.get("faps") or {}).items():
+            out[number] = max(out.get(number, 0.0), abs(value))
+    return out
+
+
+def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
+    """Every control of ``sets`` on ``face`` as named shapes (module docstring). ``progress``:
+    an optional callable taking the name of each set as it starts."""
+    from faceanim.drivers.mpeg4 import fap_set, viseme_table
+    from faceanim.face.faps import faps
+    from faceanim.rig.mpeg4 import FapRig
+    from faceanim.rig.transfer import ExpressionTransfer, default_model
+
+    sets = [s for s in RIG_SETS if s in set(sets)]
+    if not sets:
+        raise FaceAnimError(f"no rig set asked for; choose from: {', '.join(RIG_SETS)}")
+    fap = FapRig.build(face) if {"arkit", "visemes", "fap"} & set(sets) else None
+    eyes = dict(fap.eyes) if fap is not None else {}
+    rest = face.mesh.vertices
+    shapes: dict[str, np.ndarray] = {}
+    groups: dict[str, list[str]] = {}
+    skipped: dict[str, str] = {}
+
+    def pose(values: dict[int, float]) -> np.ndarray:
+        curves = np.zeros((1, fap.n_controls))
+        for number, value in values.items():
+            curves[0, number - 1] = value
+        return fap.evaluate(curves)[0] - rest
+
+    def add(group: str, made: dict[str, np.ndarray]) -> None:
+        for name, d in made.items():
+            if name in shapes:
+                raise FaceAnimError(f"two rig sets both make a shape named '{name}'")
+            shapes[name] = np.asarray(d, dtype=np.float64)
+        groups[group] = list(made)
+
+    for group in sets:
+        if progress is not None:
+            progress(group)
+        if group == "arkit":
+            made, why = arkit_shapes(face, eyes)
+            add(group, made)
+            skipped.update(why)
+        elif group == "visemes":
+            table = viseme_table()["visemes"]
+            add(group, {f"viseme_{OCULUS_VISEMES[int(k)]}": pose(fap_set(table[k]["faps"])) if table[k]["faps"]
+                        else np.zeros_like(rest) for k in sorted(table, key=int)})
+        elif group in ("au", "emotions"):
+            if "au_rig" not in locals():
+                au_rig = ExpressionTransfer(face).rig(default_model(), sides=True)
+            names = [n for n in au_rig.controls if (n in EMOTIONS) == (group == "emotions")]
+            add(group, {n: au_rig.blendshape(n) for n in names})
+        elif group == "fap":
+            scale = _fap_scales()
+            made = {}
+            for f in faps():
+                if f.is_high_level or f.name in HEAD_FAPS:
+                    continue
+                if f.number in fap.unsupported:
+                    skipped[f.name] = fap.unsupported[f.number]
+                    continue
+                value = scale.get(f.number) or (FAP_ANGLE_DEFAULT if f.is_rotation else FAP_DISTANCE_DEFAULT)
+                made[f.name] = pose({f.number: value})
+            add(group, made)
+    return AutoRig(face, shapes, groups, skipped, eyes=bool(eyes) and all(eyes.get(s) is not None for s in "LR"))
+
+
+# VRM 1.0's expression presets from the targets above: (preset, {target: weight}), the first
+# alternative whose targets all exist wins
+VRM_PRESETS: dict[str, tuple[dict[str, float], ...]] = {
+    "happy": ({"joy": 1.0}, {"mouthSmileLeft": 1.0, "mouthSmileRight": 1.0, "cheekSquintLeft": 0.5,
+                             "cheekSquintRight": 0.5}),
+    "angry": ({"anger": 1.0}, {"browDownLeft": 1.0, "browDownRight": 1.0, "noseSneerLeft": 0.4,
+                               "noseSneerRight": 0.4, "mouthPressLeft": 0.5, "mouthPressRight": 0.5}),
+    "sad": ({"sadness": 1.0}, {"browInnerUp": 1.0, "mouthFrownLeft": 1.0, "mouthFrownRight": 1.0}),
+    "relaxed": ({"mouthSmileLeft": 0.35, "mouthSmileRight": 0.35, "eyeSquintLeft": 0.3, "eyeSquintRight": 0.3},
+                {"joy": 0.4}),
+    "surprised": ({"surprise": 1.0}, {"browInnerUp": 1.0, "browOuterUpLeft": 1.0, "browOuterUpRight": 1.0,
+                                      "eyeWideLeft": 1.0, "eyeWideRight": 1.0, "jawOpen": 0.4}),
+    "aa": ({"viseme_aa": 1.0}, {"jawOpen": 0.6}),
+    "ih": ({"viseme_I": 1.0},),
+    "ou": ({"viseme_U": 1.0}, {"mouthPucker": 1.0, "jawOpen": 0.2}),
+    "ee": ({"viseme_E": 1.0},),
+    "oh": ({"viseme_O": 1.0}, {"mouthFunnel": 1.0, "jawOpen": 0.3}),
+    "blinkLeft": ({"eyeBlinkLeft": 1.0}, {"AU43_L": 1.0}),
+    "blinkRight": ({"eyeBlinkRight": 1.0}, {"AU43_R": 1.0}),
+    "blink": ({"eyeBlinkLeft": 1.0, "eyeBlinkRight": 1.0}, {"AU43": 1.0}),
+    # VRM's look directions are the avatar's own (its left is the subject's left)
+    "lookUp": ({"eyeLookUpLeft": 1.0, "eyeLookUpRight": 1.0},),
+    "lookDown": ({"eyeLookDownLeft": 1.0, "eyeLookDownRight": 1.0},),
+    "lookLeft": ({"eyeLookOutLeft": 1.0, "eyeLookInRight": 1.0},),
+    "lookRight": ({"eyeLookInLeft": 1.0, "eyeLookOutRight": 1.0},),
+    "neutral": ({},),
+}
+LOOK_PRESETS = ("lookUp", "lookDown", "lookLeft", "lookRight")
+EYE_SPAN_M = 0.0935  # the default face's eye span (Face.frame.iod) in metres: an adult's
+
+
+def metres_per_unit(face: Face) -> float:
+    """The mesh's unit in metres, for formats that need metres (VRM): the power of ten that
+    gives the face an adult's eye span (a mesh in millimetres: 0.001; in centimetres: 0.01)."""
+    return float(10.0 ** np.round(np.log10(EYE_SPAN_M / face.frame.iod)))
+
+
+def vrm_expressions(auto: AutoRig) -> tuple[dict[str, dict[str, float]], dict[str, str]]:
+    """VRM 1.0 expression presets bound to ``auto``'s targets, and the presets left out with why
+    (the look presets on a mesh without eyeballs; a preset none of whose targets were made)."""
+    out, skipped = {}, {}
+    for preset, options in VRM_PRESETS.items():
+        if preset in LOOK_PRESETS and not auto.eyes:
+            skipped[preset] = "the mesh has no eyeballs to turn"
+            continue
+        for binds in options:
+            if all(n in auto.shapes for n in binds):
+                out[preset] = dict(binds)
+                break
+        else:
+            skipped[preset] = "none of its shapes is in the rig (add --set arkit or the set it needs)"
+    return out, skipped

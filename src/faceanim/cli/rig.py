@@ -1,0 +1,86 @@
+"""``faceanim rig``: any face mesh in, a rigged glTF or VRM 1.0 out (every control a named morph
+target; :mod:`faceanim.autorig` does the work)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from faceanim.cli.common import CommandError, add_face, add_output, check_outputs, face_path, load_face, report
+from faceanim.cli.mesh import _axes
+from faceanim.errors import shown
+
+VRM_TEXT_LIMIT = 200  # characters of a VRM meta field given on the command line
+
+
+def _meta_text(flag: str):
+    import argparse
+
+    def parse(text: str) -> str:
+        if not text.strip() or len(text) > VRM_TEXT_LIMIT or any(ord(c) < 32 for c in text):
+            raise argparse.ArgumentTypeError(f"{flag} takes 1 to {VRM_TEXT_LIMIT} printable characters")
+        return text.strip()
+    return parse
+
+
+def _cmd_rig(args) -> None:
+    from faceanim.autorig import auto_rig, metres_per_unit, parse_sets, vrm_expressions
+
+    sets = parse_sets(args.set)
+    out = Path(args.output)
+    inputs = [Path(p).resolve() for p in (face_path(args), args.landmarks) if p and p != "default"]
+    if out.resolve() in inputs:
+        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
+    check_outputs(args.output)
+    face = load_face(args)
+    auto = auto_rig(face, sets)
+    counts = ", ".join(f"{name} {len(names)}" for name, names in auto.sets.items())
+    if out.suffix.lower() == ".vrm":
+        from faceanim.io.vrm import write_vrm
+        from faceanim.perform import head_pivot
+
+        expressions, left_out = vrm_expressions(auto)
+        meta = {"name": args.title or face.name, "authors": [args.author]}
+        written = write_vrm(out, face.mesh, auto.shapes, expressions, head_pivot=head_pivot(face),
+                            rotation=face.frame.rotation, scale=metres_per_unit(face),
+                            eyes=0.5 * (face.landmarks[468] + face.landmarks[473]), meta=meta,
+                            extras={"morph_sets": auto.sets})
+        if left_out:
+            print("VRM presets left out: " + "; ".join(f"{p} ({why})" for p, why in left_out.items()), file=sys.stderr)
+    else:
+        from faceanim.io.gltf import write_gltf
+
+        written = write_gltf(out, face.mesh, auto.shapes, quantize=args.compact, extras={"morph_sets": auto.sets})
+    print(f"{len(auto.shapes)} morph targets ({counts})")
+    if auto.skipped:
+        by_reason: dict[str, list[str]] = {}
+        for name, why in auto.skipped.items():
+            by_reason.setdefault(why, []).append(name)
+        print("not made on this face: " + "; ".join(f"{', '.join(names)} ({why})" for why, names in by_reason.items()),
+              file=sys.stderr)
+    report([written])
+
+
+def register(sub) -> None:
+    from faceanim.autorig import RIG_SETS
+
+    p = sub.add_parser("rig", help="rig any face mesh: ARKit's 52 blendshapes (Apple's names), visemes, FACS AUs, "
+                                   "emotions and FAPs as named morph targets (.glb) or a VRM 1.0 avatar (.vrm)",
+                       description="Rig a face mesh automatically: landmarks detected (or --landmarks), then every "
+                                   "control of the asked sets written as a named morph target on the mesh, vertex "
+                                   "order kept. Sets: arkit (Apple ARKit blendshapes, eyeBlinkLeft ... ; Left/Right "
+                                   "are the subject's sides), visemes (the 15 Oculus visemes viseme_sil ... "
+                                   "viseme_U), au (FACS action units with one-sided halves), emotions (joy ... "
+                                   "disgust), fap (MPEG-4 FAPs by name). A .vrm also binds VRM 1.0's expression "
+                                   "presets (happy ... neutral) to them.")
+    add_face(p)
+    _axes(p)
+    p.add_argument("--set", default="all", metavar="SETS",
+                   help=f"comma-separated sets to write: {','.join(RIG_SETS)} (default: all)")
+    p.add_argument("--compact", action="store_true",
+                   help="quantised .glb (KHR_mesh_quantization): smaller, for delivery")
+    p.add_argument("--title", type=_meta_text("--title"), help="the avatar's name in a .vrm (default: the mesh's)")
+    p.add_argument("--author", type=_meta_text("--author"), default="unknown",
+                   help="the author written in a .vrm's meta (default: unknown)")
+    add_output(p, [".glb", ".vrm"])
+    p.set_defaults(func=_cmd_rig)
