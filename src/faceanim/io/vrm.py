@@ -262,6 +262,7 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
     path = check_output_path(path)
     pivot = _vector(head_pivot, "head_pivot")
     rot = _rotation(rotation)
+    eye_point = None if eyes is None else _vector(eyes, "eyes")
     if isinstance(scale, bool) or not isinstance(scale, (int, float, np.floating)) or not math.isfinite(scale) \
             or scale <= 0:
         raise FaceAnimError(f"scale (metres per mesh unit) must be a positive number, not '{shown(scale)}'")
@@ -312,10 +313,10 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
         "humanoid": {"humanBones": {name: {"node": bone_index[name]} for name, _, _ in SKELETON}},
         "firstPerson": {"meshAnnotations": [{"node": mesh_node, "type": "thirdPersonOnly"}]},
     }
-    if any(p in preset for p in LOOKS) or eyes is not None:
+    if any(p in preset for p in LOOKS) or eye_point is not None:
         look = {"type": "expression", **ranges}
-        if eyes is not None:
-            offset = scale * rot @ (_vector(eyes, "eyes") - pivot)
+        if eye_point is not None:
+            offset = scale * rot @ (eye_point - pivot)
             look = {"offsetFromHeadBone": [float(x) for x in offset], **look}
         vrm["lookAt"] = look
     if preset:
