@@ -6,12 +6,16 @@
 #     Mesa EGL/GL (offscreen rendering: EGL with Mesa's llvmpipe) and libGL/GLib for opencv
 #       (mediapipe): libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri libglx-mesa0 libgbm1, libglib2.0-0
 #     espeak-ng (speech synthesis), optional
-#     Node.js with npm (the glTF validator used by a test), optional: Debian's `nodejs npm` only
-#       when neither node nor npm exists (NodeSource's nodejs carries its own npm, and Debian's
-#       npm conflicts with it)
+#     chromium (Debian's; the browser viewer's end-to-end tests drive it headless with Playwright),
+#       optional
+#     Node.js with npm (the glTF validator and three-vrm used by tests; three.js for faceanim
+#       view), optional: Debian's `nodejs npm` only when neither node nor npm exists (NodeSource's
+#       nodejs carries its own npm, and Debian's npm conflicts with it)
 #     python3 with venv, required, only when there is no usable .venv and no usable python3
 #   .venv: a virtual environment with faceanim installed from this checkout (required)
 #   tools/node_modules: the Khronos glTF validator and three-vrm, with npm (optional)
+#   src/faceanim/viewer/static/node_modules: three.js and three-vrm served by faceanim view, with
+#     npm (optional; pinned in that folder's package.json and package-lock.json)
 #
 # A required part that cannot be had stops the script with an error; an optional one prints one
 # note saying what will be skipped, and the script goes on.
@@ -95,16 +99,18 @@ has_mesa_dri || gl_pkgs+=(libgl1-mesa-dri)
 
 have espeak-ng \
   || need espeak-ng espeak-ng 0 "speech synthesis (faceanim say TEXT) and its tests will be skipped"
+have chromium \
+  || need chromium chromium 0 "the browser viewer's tests (faceanim view in headless Chromium) will be skipped"
 
 node_note=""
 if have node && have npm; then
   :
 elif have node; then
-  node_note="node is here but npm is not (Debian's npm is not installed beside another Node.js: it conflicts with NodeSource's nodejs, which carries its own npm); the glTF validator and its test will be skipped"
+  node_note="node is here but npm is not (Debian's npm is not installed beside another Node.js: it conflicts with NodeSource's nodejs, which carries its own npm); the glTF validator and its test will be skipped, and faceanim view will lack three.js"
 elif have npm; then
-  node_note="npm is here but node is not (Debian's nodejs is not installed beside another npm); the glTF validator and its test will be skipped"
+  node_note="npm is here but node is not (Debian's nodejs is not installed beside another npm); the glTF validator and its test will be skipped, and faceanim view will lack three.js"
 else
-  need "Node.js/npm" "nodejs npm" 0 "the glTF validator (tools/) and its test will be skipped"
+  need "Node.js/npm" "nodejs npm" 0 "the glTF validator (tools/) and its test will be skipped, and faceanim view will lack three.js"
 fi
 
 if [ ! -x .venv/bin/python ] || ! .venv/bin/python -c '' >/dev/null 2>&1; then
@@ -237,5 +243,16 @@ if have node && have npm && ! npm ls --prefix tools >/dev/null 2>&1; then
   say "installing the glTF validator and three-vrm into tools/ (npm)"
   npm install --prefix tools --no-audit --no-fund --silent >/dev/null 2>&1 \
     || note "could not install the glTF validator and three-vrm (npm install --prefix tools); their tests will be skipped"
+fi
+
+# ---------------------------------------------------------------------------------------------
+# three.js and three-vrm served by faceanim view (optional), pinned in the viewer's package.json;
+# installed when a pin is missing or at another version (npm ls fails).
+# ---------------------------------------------------------------------------------------------
+viewer_static=src/faceanim/viewer/static
+if have node && have npm && ! npm ls --prefix "$viewer_static" >/dev/null 2>&1; then
+  say "installing three.js for faceanim view into $viewer_static/ (npm)"
+  npm install --prefix "$viewer_static" --no-audit --no-fund --silent >/dev/null 2>&1 \
+    || note "could not install three.js (npm install --prefix $viewer_static); faceanim view and its tests will be skipped"
 fi
 say "ready (.venv)"

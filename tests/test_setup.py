@@ -57,6 +57,7 @@ if [ "$1" = install ]; then
       espeak-ng) cmd=espeak-ng ;;
       nodejs) cmd=node ;;
       npm) cmd=npm ;;
+      chromium) cmd=chromium ;;
       *) continue ;;
     esac
     printf '#!{bash}\\nexit 0\\n' > "$FAKE_BIN/$cmd"
@@ -106,6 +107,7 @@ class Sandbox:
         self.stub("apt-get", FAKE_APT.format(bash=BASH, held=HELD))
         self.stub("ldconfig", FAKE_LDCONFIG.format(bash=BASH))
         self.stub("python3", OK.format(bash=BASH))
+        self.stub("chromium")  # present unless a test removes it
         self.libs(LIBS, dri=True)
 
     def stub(self, name: str, text: str | None = None) -> None:
@@ -192,8 +194,8 @@ def test_nodesource_node_present_installs_espeak_and_never_debian_npm(box):
 
 
 def test_nothing_present_asks_for_everything(box):
-    """(b) A bare machine: Mesa, GLib, espeak-ng and Debian's nodejs with npm, each its own call."""
-    box.remove("node", "npm", "espeak-ng")
+    """(b) A bare machine: Mesa, GLib, espeak-ng, chromium and Debian's nodejs with npm, each its own call."""
+    box.remove("node", "npm", "espeak-ng", "chromium")
     box.libs([], dri=False)
     r = box.run()
     assert r.returncode == 0, r.stderr
@@ -201,9 +203,10 @@ def test_nothing_present_asks_for_everything(box):
     installs = box.installs()
     assert ["nodejs", "npm"] in installs
     assert ["espeak-ng"] in installs
+    assert ["chromium"] in installs
     assert ["libglib2.0-0"] in installs
     assert sorted(next(c for c in installs if "libegl1" in c)) == sorted(MESA_PKGS)
-    assert len(installs) == 4
+    assert len(installs) == 5
     assert "note:" not in r.stderr
 
 
@@ -221,6 +224,26 @@ def test_espeak_conflict_is_a_note_and_the_rest_still_installs(box):
     # the failure did not stop the calls after it
     order = [c for c in box.installs()]
     assert order.index(["espeak-ng"]) < order.index(["nodejs", "npm"])
+
+
+def test_chromium_missing_gets_its_own_call_and_a_conflict_is_a_note(box):
+    """Debian's chromium (the viewer's browser tests) is optional: its own apt-get call; if apt
+    refuses it, one note says which tests will be skipped and the rest still installs."""
+    box.stub("node")
+    box.stub("npm")
+    box.remove("chromium", "espeak-ng")
+    r = box.run()
+    assert r.returncode == 0, r.stderr
+    assert box.installs() == [["espeak-ng"], ["chromium"]]
+    assert "setup: installing chromium (chromium)" in r.stdout
+    box.apt_log.unlink()
+    box.remove("chromium")
+    r = box.run(fail="chromium")
+    assert r.returncode == 0, r.stderr
+    assert box.installs() == [["chromium"]]
+    notes = [line for line in r.stderr.splitlines() if line.startswith("setup: note:")]
+    assert notes == ["setup: note: could not install chromium; the browser viewer's tests (faceanim view in "
+                     "headless Chromium) will be skipped"]
 
 
 def test_everything_present_never_calls_apt_get(box):
