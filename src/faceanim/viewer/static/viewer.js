@@ -28,18 +28,43 @@ function fail(message) {
 }
 
 // ------------------------------------------------------------------------------------ scene
+// WebGL drawn by the CPU (SwiftShader, llvmpipe: no GPU) gets the fast look unless ?quality=high:
+// no multisampling, no environment map, Lambert shading (3-4x the frame rate there)
+function softwareRenderer() {
+  try {
+    const gl = document.createElement('canvas').getContext('webgl2');
+    const ext = gl.getExtension('WEBGL_debug_renderer_info');
+    const name = String(gl.getParameter(ext ? ext.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+    const lose = gl.getExtension('WEBGL_lose_context');
+    if (lose) lose.loseContext();
+    return /swiftshader|llvmpipe|softpipe|software/i.test(name) ? name : '';
+  } catch (e) {
+    return '';
+  }
+}
+const software = softwareRenderer();
+const quality = new URLSearchParams(location.search).get('quality') || (software ? 'fast' : 'high');
+const fast = quality === 'fast';
+viewer.quality = quality;
 const canvas = $('view');
-const renderer = new THREE.WebGLRenderer({ canvas, antialias: true });
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: !fast });
+viewer.renderer = renderer;
 renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
 renderer.toneMapping = THREE.NeutralToneMapping;
 const scene = new THREE.Scene();
+viewer.scene = scene;
 scene.background = new THREE.Color(0x30343c);
 const camera = new THREE.PerspectiveCamera(30, 1, 0.01, 100);
+viewer.camera = camera;
 const controls = new OrbitControls(camera, canvas);
 controls.enableDamping = false;
-const pmrem = new THREE.PMREMGenerator(renderer);
-scene.environment = pmrem.fromScene(new RoomEnvironment(), 0.04).texture;
-scene.environmentIntensity = 0.55;
+if (!fast) {
+  const pmrem = new THREE.PMREMGenerator(renderer);
+  scene.environment = pmrem.fromScene(new RoomEnvironment(), 0.04).texture;
+  scene.environmentIntensity = 0.55;
+} else {
+  scene.add(new THREE.AmbientLight(0xffffff, 0.9));
+}
 const key = new THREE.DirectionalLight(0xffffff, 1.6);
 key.position.set(0.6, 0.8, 1.0);
 const fill = new THREE.DirectionalLight(0xffffff, 0.5);
@@ -382,7 +407,7 @@ function pickMesh(ev) {
 }
 
 function nextName() {
-  let k = viewer.points.mesh.length + 1;
+  let k = 1;
   while (viewer.points.mesh.some((p) => p.name === 'p' + k)) k++;
   return 'p' + k;
 }
@@ -615,6 +640,17 @@ async function main() {
       viewer.bindings.get(name).push({ mesh: o, index });
     }
   });
+  if (fast) {
+    root.traverse((o) => {
+      const m = o.material;
+      if (!o.isMesh || !m || Array.isArray(m) || !(m.isMeshStandardMaterial || m.isMeshPhysicalMaterial)) return;
+      o.material = new THREE.MeshLambertMaterial({
+        map: m.map, color: m.color, side: m.side, transparent: m.transparent, opacity: m.opacity,
+        alphaTest: m.alphaTest, normalMap: m.normalMap, emissive: m.emissive, emissiveMap: m.emissiveMap,
+        vertexColors: m.vertexColors, name: m.name,
+      });
+    });
+  }
   viewer.vertexCount = vertices;
   viewer.morphCount = viewer.bindings.size;
   if (gltf.userData.vrm) {
@@ -624,15 +660,18 @@ async function main() {
   }
   scene.add(root);
   root.updateMatrixWorld(true);
+  const box = new THREE.Box3().setFromObject(root);
   const head = vrm && vrm.humanoid && vrm.humanoid.getNormalizedBoneNode('head');
-  if (head) {
+  if (head && box.getSize(new THREE.Vector3()).y > 0.6) {
+    // a full-body avatar: frame its head
     const c = head.getWorldPosition(new THREE.Vector3());
-    frame(new THREE.Box3().setFromCenterAndSize(c.add(new THREE.Vector3(0, 0.06, 0)), new THREE.Vector3(0.3, 0.3, 0.25)));
+    frame(new THREE.Box3().setFromCenterAndSize(c.add(new THREE.Vector3(0, 0.04, 0)), new THREE.Vector3(0.3, 0.3, 0.25)));
   } else {
-    frame(new THREE.Box3().setFromObject(root));
+    frame(box);
   }
   $('model-stats').textContent = `${vertices.toLocaleString('en')} vertices, ${viewer.morphCount} morph targets, ` +
-    `${gltf.animations.length} animation${gltf.animations.length === 1 ? '' : 's'}`;
+    `${gltf.animations.length} animation${gltf.animations.length === 1 ? '' : 's'}` +
+    (fast ? '; fast shading (?quality=high for the full look)' : '');
   buildSliders(info.groups);
   setupAnimations(gltf.animations);
   setupPoints(info);
