@@ -25,11 +25,13 @@
 set -euo pipefail
 
 system_only=${FACEANIM_SETUP_SYSTEM_ONLY:-0}
+with_tests=0
 for arg in "$@"; do
   case $arg in
     --system-only) system_only=1 ;;
-    -h | --help) echo "usage: bash scripts/setup.sh [--system-only]"; exit 0 ;;
-    *) echo "setup: error: unknown argument: $arg (usage: bash scripts/setup.sh [--system-only])" >&2; exit 2 ;;
+    --tests) with_tests=1 ;;
+    -h | --help) echo "usage: bash scripts/setup.sh [--system-only] [--tests]"; exit 0 ;;
+    *) echo "setup: error: unknown argument: $arg (usage: bash scripts/setup.sh [--system-only] [--tests])" >&2; exit 2 ;;
   esac
 done
 
@@ -254,5 +256,33 @@ if have node && have npm && ! npm ls --prefix "$viewer_static" >/dev/null 2>&1; 
   say "installing three.js for faceanim view into $viewer_static/ (npm)"
   npm install --prefix "$viewer_static" --no-audit --no-fund --silent >/dev/null 2>&1 \
     || note "could not install three.js (npm install --prefix $viewer_static); faceanim view and its tests will be skipped"
+fi
+# ---------------------------------------------------------------------------------------------
+# --tests: Blender's Python module (bpy, optional) in its own .venv-blender, for the check that
+# faceanim's glTF files import into Blender (tests/test_blender.py). bpy 5.0.1 wants Python 3.11
+# exactly and numpy < 2; it is a 374 MB download, about 1 GB installed, so only the test setup
+# makes it. Its X11 client libraries (libx11-6 libxrender1 libxfixes3 libxi6 libxkbcommon0 libsm6)
+# are not installed here: without them bpy does not import and the test skips with the reason.
+# ---------------------------------------------------------------------------------------------
+BPY_VERSION=5.0.1
+if [ "$with_tests" = 1 ] && ! { [ -x .venv-blender/bin/python ] && .venv-blender/bin/python -c 'import bpy' >/dev/null 2>&1; }; then
+  bpy_py=""
+  for c in python3.11 "$PY"; do
+    p=$(command -v "$c" 2>/dev/null) || continue
+    if "$p" -c 'import sys, venv, ensurepip; sys.exit(sys.version_info[:2] != (3, 11))' >/dev/null 2>&1; then
+      bpy_py=$p
+      break
+    fi
+  done
+  if [ -z "$bpy_py" ]; then
+    note "Blender's bpy $BPY_VERSION needs Python 3.11, which is not here; tests/test_blender.py will be skipped"
+  else
+    say "installing Blender's bpy $BPY_VERSION into .venv-blender (PyPI, about 1 GB)"
+    if ! { rm -rf .venv-blender && "$bpy_py" -m venv .venv-blender \
+           && .venv-blender/bin/python -m pip install -q "bpy==$BPY_VERSION" >/dev/null 2>&1 \
+           && .venv-blender/bin/python -c 'import bpy' >/dev/null 2>&1; }; then
+      note "could not set up Blender's bpy $BPY_VERSION in .venv-blender; tests/test_blender.py will be skipped"
+    fi
+  fi
 fi
 say "ready (.venv)"
