@@ -47,8 +47,10 @@ def source_bases(basis_curves: np.ndarray, curve_names, head: GenericHead | None
     k = np.asarray(basis_curves, dtype=np.float64)
     out = np.zeros((len(k), head.mesh.n_vertices, 3))
     for c, name in enumerate(curve_names):
-        rows, delta = head.sparse_shape(name)
-        out[:, rows] += k[:, c, None, None] * delta[None]
+        used = np.flatnonzero(k[:, c])  # the bases this shape is part of (one each for named shapes)
+        if len(used):
+            rows, delta = head.sparse_shape(name)
+            out[np.ix_(used, rows)] += k[used, c, None, None] * delta[None]
     return out
 
 
