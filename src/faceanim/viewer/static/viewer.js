@@ -150,7 +150,7 @@ function buildSliders(groups) {
     const names = g.names.filter((n) => viewer.bindings.has(n) && !shown.has(n));
     if (!names.length) continue;
     const det = document.createElement('details');
-    det.open = true;
+    det.open = count === 0 || viewer.bindings.size <= 60;  // many targets: the first set open
     det.dataset.set = g.set;
     const sum = document.createElement('summary');
     sum.textContent = `${g.label} (${names.length})`;
@@ -491,7 +491,8 @@ function setupPoints(info) {
   });
   pickTarget.addEventListener('change', () => showTarget(pickTarget.value === 'mesh' ? -1 : parseInt(pickTarget.value, 10)));
   photoView.addEventListener('change', () => { viewer.points.photos[photoIndex].view = photoView.value; });
-  img.addEventListener('load', renderPoints);
+  img.addEventListener('load', () => { fitPhoto(); renderPoints(); });
+  new ResizeObserver(fitPhoto).observe($('photo-pane'));
   img.addEventListener('click', pickPhoto);
   let down = null;
   canvas.addEventListener('pointerdown', (ev) => { down = [ev.clientX, ev.clientY]; });
@@ -510,9 +511,19 @@ function setupPoints(info) {
   else say('Save downloads the points (start with --save-points PATH to write a file)');
 }
 
+function fitPhoto() {
+  // the photo as large as the pane allows (small photos scaled up: finer picking)
+  const pane = $('photo-pane');
+  if (!img.naturalWidth || !pane.clientWidth) return;
+  const s = Math.min((pane.clientWidth - 20) / img.naturalWidth, (pane.clientHeight - 20) / img.naturalHeight);
+  img.style.width = `${Math.floor(img.naturalWidth * s)}px`;
+  img.style.height = `${Math.floor(img.naturalHeight * s)}px`;
+}
+
 function showTarget(k) {
   photoIndex = k;
   $('photo-pane').hidden = k < 0;
+  $('hint').hidden = k >= 0;
   photoView.hidden = k < 0;
   if (k >= 0) {
     photoView.value = viewer.points.photos[k].view;
@@ -584,7 +595,7 @@ function frame(box) {
   const size = box.getSize(new THREE.Vector3());
   const centre = box.getCenter(new THREE.Vector3());
   const span = Math.max(size.x, size.y, 1e-6);
-  const dist = (span / 2) / Math.tan(THREE.MathUtils.degToRad(camera.fov / 2)) * 1.25 + size.z / 2;
+  const dist = (span / 2) / Math.tan(THREE.MathUtils.degToRad(camera.fov / 2)) * 1.15 + size.z / 2;
   camera.position.set(centre.x, centre.y, centre.z + dist);
   camera.near = dist / 100;
   camera.far = dist * 100;
