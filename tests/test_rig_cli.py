@@ -228,3 +228,34 @@ def test_the_output_cannot_be_the_input(tmp_path, capsys):
     assert run(["rig", tmp_path / "in.glb", "-o", tmp_path / "in.glb"]) == 2
     assert "is also an input" in capsys.readouterr().err
     assert (tmp_path / "in.glb").read_bytes() == before
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--set", "all,wings"], "unknown rig set 'wings'"),
+    (["--title", "a\u202eb"], "--title takes 1 to 200 printable characters"),
+    (["--forward", "+y", "--up", "-y"], "lie on one axis"),
+    (["--compact"], "drop it for a .vrm"),
+])
+def test_more_bad_arguments(tmp_path, capsys, args, message):
+    """From the bad-input sweep: each was taken before (all,wings wrote a full rig)."""
+    out = tmp_path / "o.vrm"
+    assert run(["rig", "-o", out, *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and message in err, err
+    assert os.listdir(tmp_path) == []
+
+
+def test_escape_codes_in_a_file_name_do_not_reach_the_terminal(tmp_path, capsys):
+    bad = tmp_path / "empty\x1b[31m.obj"
+    bad.write_text("")
+    assert run(["rig", bad, "-o", tmp_path / "o.glb"]) == 2
+    err = capsys.readouterr().err
+    assert "\x1b" not in err and "empty?[31m.obj" in err
+
+
+def test_a_write_protected_output_is_kept_even_for_root(tmp_path, capsys):
+    out = tmp_path / "keep.glb"
+    out.write_text("keep")
+    out.chmod(0o444)
+    assert run(["rig", "-o", out, "--set", "visemes"]) == 2
+    assert "read-only" in capsys.readouterr().err and out.read_text() == "keep"

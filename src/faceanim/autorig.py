@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from faceanim.errors import FaceAnimError
+from faceanim.errors import FaceAnimError, shown
 from faceanim.face.face import Face
 from faceanim.rig.rig import Rig
 
@@ -71,12 +71,10 @@ def parse_sets(text: str) -> list[str]:
     asked = [s.strip().lower() for s in str(text).split(",") if s.strip()]
     if not asked:
         raise FaceAnimError(f"--set is empty; give one or more of: {', '.join(RIG_SETS)} (or all)")
-    if "all" in asked:
-        return list(RIG_SETS)
-    unknown = [s for s in asked if s not in RIG_SETS]
+    unknown = [s for s in asked if s not in RIG_SETS and s != "all"]
     if unknown:
-        raise FaceAnimError(f"unknown rig set '{unknown[0]}'; choose from: {', '.join(RIG_SETS)} (or all)")
-    return [s for s in RIG_SETS if s in asked]
+        raise FaceAnimError(f"unknown rig set '{shown(unknown[0])}'; choose from: {', '.join(RIG_SETS)} (or all)")
+    return list(RIG_SETS) if "all" in asked else [s for s in RIG_SETS if s in asked]
 
 
 def _turn(points: np.ndarray, centre: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:

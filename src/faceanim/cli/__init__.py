@@ -127,7 +127,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args.func(args)
     except FaceAnimError as exc:
-        print(f"faceanim {name}: error: {exc}", file=sys.stderr)
+        # printable characters only: a file name's escape codes must not reach the terminal
+        message = "".join(c if c.isprintable() else "?" for c in str(exc))
+        print(f"faceanim {name}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("faceanim: interrupted", file=sys.stderr)

@@ -17,7 +17,7 @@ def _meta_text(flag: str):
     import argparse
 
     def parse(text: str) -> str:
-        if not text.strip() or len(text) > VRM_TEXT_LIMIT or any(ord(c) < 32 for c in text):
+        if not text.strip() or len(text) > VRM_TEXT_LIMIT or not text.isprintable():
             raise argparse.ArgumentTypeError(f"{flag} takes 1 to {VRM_TEXT_LIMIT} printable characters")
         return text.strip()
     return parse
@@ -31,6 +31,10 @@ def _cmd_rig(args) -> None:
     inputs = [Path(p).resolve() for p in (face_path(args), args.landmarks) if p and p != "default"]
     if out.resolve() in inputs:
         raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
+    if args.forward.lstrip("+-") == args.up.lstrip("+-"):
+        raise CommandError(f"--forward {args.forward} and --up {args.up} lie on one axis: they must be different axes")
+    if args.compact and out.suffix.lower() == ".vrm":
+        raise CommandError("--compact writes KHR_mesh_quantization, which VRM tools do not all read; drop it for a .vrm")
     check_outputs(args.output)
     face = load_face(args)
     auto = auto_rig(face, sets)
@@ -40,7 +44,7 @@ def _cmd_rig(args) -> None:
         from faceanim.perform import head_pivot
 
         expressions, left_out = vrm_expressions(auto)
-        meta = {"name": args.title or face.name, "authors": [args.author]}
+        meta = {"name": args.title or shown(face.name, VRM_TEXT_LIMIT), "authors": [args.author]}
         written = write_vrm(out, face.mesh, auto.shapes, expressions, head_pivot=head_pivot(face),
                             rotation=face.frame.rotation, scale=metres_per_unit(face),
                             eyes=0.5 * (face.landmarks[468] + face.landmarks[473]), meta=meta,

@@ -97,7 +97,8 @@ def check_output_path(path: str | os.PathLike, what: str = "output") -> Path:
         if not stat.S_ISREG(target.st_mode):
             raise OutputError(f"{what} '{sp}' exists and is not a regular file (a device, pipe or socket); "
                               "choose another path")
-        if not os.access(p, os.W_OK):
+        # no write bit at all is the user's protection even for root, whom os.access lets through
+        if not os.access(p, os.W_OK) or not p.stat().st_mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH):
             raise OutputError(f"{what} '{sp}' exists and is read-only; remove it or choose another path")
         euid = os.geteuid() if hasattr(os, "geteuid") else None
         if (euid not in (None, 0) and st.st_mode & stat.S_ISVTX and lst.st_uid != euid
