@@ -20,6 +20,8 @@ from __future__ import annotations
 import json
 import mimetypes
 import os
+import shutil
+import sys
 import threading
 from dataclasses import dataclass, field
 from http import HTTPStatus
@@ -232,9 +234,9 @@ class _Handler(BaseHTTPRequestHandler):
         self._json(status, {"error": message})
 
     def _file(self, path: Path, ctype: str | None = None, cache: bool = False, head: bool = False) -> None:
+        """A file, streamed (a model may be large)."""
         try:
-            with open(path, "rb") as fh:
-                body = fh.read()
+            fh = open(path, "rb")
         except OSError:
             self._error(HTTPStatus.NOT_FOUND, "not found")
             return
@@ -243,7 +245,17 @@ class _Handler(BaseHTTPRequestHandler):
                      ".css": "text/css", ".wav": "audio/wav", ".glb": "model/gltf-binary",
                      ".vrm": "model/gltf-binary"}.get(path.suffix.lower()) \
                 or mimetypes.guess_type(path.name)[0] or "application/octet-stream"
-        self._send(HTTPStatus.OK, body, ctype, cache=cache, head=head)
+        with fh:
+            size = os.fstat(fh.fileno()).st_size
+            self.send_response(HTTPStatus.OK)
+            self.send_header("Content-Type", ctype)
+            self.send_header("Content-Length", str(size))
+            self.send_header("Cache-Control", "max-age=3600" if cache else "no-store")
+            self.send_header("X-Content-Type-Options", "nosniff")
+            self.send_header("Cross-Origin-Resource-Policy", "same-origin")
+            self.end_headers()
+            if not head:
+                shutil.copyfileobj(fh, self.wfile, 1 << 20)
 
     def _vendor_file(self, rel: str) -> Path | None:
         """A file of the installed npm packages, or None: every segment a plain name, the
@@ -352,6 +364,14 @@ class ViewerServer(ThreadingHTTPServer):
                                   "with --port P") from None
             raise ViewerError(f"cannot listen on {HOST}:{port} ({exc.strerror or exc}); give another --port") \
                 from None
+
+    def handle_error(self, request, client_address) -> None:
+        """A browser that goes away mid-answer is no error; anything else: one line, no traceback."""
+        exc = sys.exc_info()[1]
+        if isinstance(exc, (ConnectionError, TimeoutError)):
+            return
+        print(f"faceanim view: internal error answering a request ({type(exc).__name__}); the viewer goes on",
+              file=sys.stderr, flush=True)
 
     @property
     def url(self) -> str:
