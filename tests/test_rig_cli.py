@@ -72,7 +72,7 @@ def test_names_sets_and_the_mesh_come_back_as_they_went_in(default_rig):
 def test_eye_looks_turn_the_eyeballs_rigidly_the_right_way(default_rig):
     """At weight 1 each eyeball turns as a rigid body (its vertices keep their distances) by the
     Live Link take's angle, and its front moves to the subject's side the name says."""
-    from faceanim.autorig import LOOK_ANGLES
+    from faceanim.rig.arkit import LOOK_ANGLES
     from faceanim.rig.mpeg4 import FapRig
 
     _, _, shapes, rest = default_rig
@@ -259,3 +259,20 @@ def test_a_write_protected_output_is_kept_even_for_root(tmp_path, capsys):
     out.chmod(0o444)
     assert run(["rig", "-o", out, "--set", "visemes"]) == 2
     assert "read-only" in capsys.readouterr().err and out.read_text() == "keep"
+
+
+def test_arkit_play_drives_the_same_shapes_rig_writes(tmp_path, default_rig):
+    """A take played on a face uses the targets `faceanim rig` writes for it (eyeballs turning
+    with the look curves included): one rig, whatever drives it."""
+    from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
+
+    w = np.zeros((10, len(ARKIT_NAMES)))
+    w[:, ARKIT_NAMES.index("EyeLookOutLeft")] = np.linspace(0, 1, 10)
+    w[:, ARKIT_NAMES.index("JawOpen")] = np.linspace(1, 0, 10)
+    write_arkit_csv(tmp_path / "take.csv", w, 30.0, np.zeros((10, 3)))
+    assert run(["arkit", "play", tmp_path / "take.csv", "-o", tmp_path / "take.glb"]) == 0
+    _, names, played, _ = targets(tmp_path / "take.glb")
+    _, _, rigged, _ = default_rig
+    assert names == ["eyeLookOutLeft", "jawOpen"]
+    for n in names:
+        assert np.allclose(played[n], rigged[n], atol=1e-7), n

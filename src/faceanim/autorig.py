@@ -10,7 +10,7 @@ The sets (:data:`RIG_SETS`), each built from the input mesh and its landmarks al
   turned by the spline's Jacobian): no shape is copied, every displacement is rebuilt on the
   face's own surface. The ``eyeLook*`` shapes also turn the eyeballs when the mesh has them
   (ICT's own move only the lids): by the angles a real Live Link Face take records for a look
-  curve at 1 (:data:`LOOK_ANGLES`). ``tongueOut`` has no learned pattern (ICT has no such shape):
+  curve at 1 (:data:`~faceanim.rig.arkit.LOOK_ANGLES`). ``tongueOut`` has no learned pattern (ICT has no such shape):
   it is left out and reported.
 - ``visemes``: the 15 Oculus visemes (``viseme_sil`` ... ``viseme_U``), which are MPEG-4's
   visemes 0-14, posed by the face's FAP rig (jaw hinge included).
@@ -37,10 +37,6 @@ RIG_SETS = ("arkit", "visemes", "au", "emotions", "fap")
 
 # Oculus' 15 visemes are MPEG-4's visemes 0..14, in order
 OCULUS_VISEMES = ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "I", "O", "U")
-
-# radians an eyeball turns at look weight 1: the Live Link Face take in ../shared/data/arkit-curves,
-# its eye yaw/pitch regressed on the look curves (r = 0.999 yaw, 0.996 pitch; both eyes agree to 0.01)
-LOOK_ANGLES = {"Out": 0.58, "In": 0.63, "Up": 0.45, "Down": 0.62}
 
 EMOTIONS = ("joy", "sadness", "surprise", "fear", "anger", "disgust")
 
@@ -77,47 +73,6 @@ def parse_sets(text: str) -> list[str]:
     return list(RIG_SETS) if "all" in asked else [s for s in RIG_SETS if s in asked]
 
 
-def _turn(points: np.ndarray, centre: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
-    """Displacement of ``points`` turned by ``angle`` about the line through ``centre`` along the
-    unit ``axis`` (Rodrigues)."""
-    from scipy.spatial.transform import Rotation
-
-    r = Rotation.from_rotvec(axis * angle).as_matrix()
-    return (points - centre) @ r.T + centre - points
-
-
-def _look_shapes(face: Face, eyes: dict) -> dict[str, np.ndarray]:
-    """The eyeballs' part of the eight ``eyeLook*`` shapes: each eyeball turned about its centre
-    in the face's own axes (x to the subject's left, y up, z forward)."""
-    right, up, forward = face.frame.rotation
-    v = face.mesh.vertices
-    out = {}
-    for side, word in (("L", "Left"), ("R", "Right")):
-        if eyes.get(side) is None:
-            continue
-        rows, centre = eyes[side]
-        outward = right if side == "L" else -right  # the subject's left eye looks out to its left
-        # the direction the pupil moves, and the axis that turns forward into it
-        for look, towards in (("Out", outward), ("In", -outward), ("Up", up), ("Down", -up)):
-            axis = np.cross(forward, towards)
-            d = np.zeros_like(v)
-            d[rows] = _turn(v[rows], centre, axis / np.linalg.norm(axis), LOOK_ANGLES[look])
-            out[f"eyeLook{look}{word}"] = d
-    return out
-
-
-def arkit_shapes(face: Face, eyes: dict) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """ARKit's shapes on ``face`` (module docstring) and the ones it cannot make, with why."""
-    from faceanim.rig.arkit import arkit_rig
-
-    rig, missing = arkit_rig(face)
-    shapes = {n: rig.blendshape(n) for n in rig.controls}
-    for name, d in _look_shapes(face, eyes).items():
-        shapes[name] = shapes[name] + d
-    skipped = {n: "no learned pattern (ICT FaceKit has no such shape)" for n in missing}
-    return shapes, skipped
-
-
 def _fap_scales() -> dict[int, float]:
     """Per FAP number: the largest |value| faceanim's viseme and expression tables give it."""
     from faceanim.drivers.mpeg4 import fap_set, viseme_table
@@ -135,6 +90,7 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
     an optional callable taking the name of each set as it starts."""
     from faceanim.drivers.mpeg4 import fap_set, viseme_table
     from faceanim.face.faps import faps
+    from faceanim.rig.arkit import arkit_shapes
     from faceanim.rig.mpeg4 import FapRig
     from faceanim.rig.transfer import ExpressionTransfer, default_model
 

@@ -321,15 +321,15 @@ def write_take(path, take, face: Face | None = None, fps: float = 30.0, size: in
     """Play a recorded Live Link Face take (:class:`~faceanim.io.arkit_csv.ArkitTake`, resampled to
     ``fps``) on ``face`` by the suffix of ``path``:
 
-    - ``.glb``: the face with its ARKit blendshapes (:func:`~faceanim.rig.arkit.arkit_rig`, Apple's
-      names) as morph targets, the recorded weights and head rotation animated (node ``head``);
+    - ``.glb``: the face with its ARKit blendshapes (:func:`~faceanim.rig.arkit.arkit_shapes`, Apple's
+      names, the same as ``faceanim rig`` makes) as morph targets, the recorded weights and head rotation animated (node ``head``);
     - ``.mp4``: the face rendered, turning with the recorded head;
     - ``.csv``: the take itself at ``fps`` (Live Link Face).
 
     The recorded head angles are taken as yaw, pitch, roll in radians with faceanim's signs (the
     shared take's are all zero: the signs are unchecked against a moving recording)."""
     from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
-    from faceanim.rig.arkit import apple_name, arkit_rig
+    from faceanim.rig.arkit import apple_name, arkit_shapes
 
     path = Path(path)
     suffix = path.suffix.lower()
@@ -338,7 +338,8 @@ def write_take(path, take, face: Face | None = None, fps: float = 30.0, size: in
         return write_arkit_csv(path, r.weights, fps, r.head)
     if face is None:
         raise FaceAnimError(f"a {suffix} output needs the face to animate")
-    rig, _ = arkit_rig(face)
+    made, _ = arkit_shapes(face)
+    rig = Rig.from_blendshapes(face.mesh, made)
     column = {apple_name(n): k for k, n in enumerate(ARKIT_NAMES)}
     curves = r.weights[:, [column[c] for c in rig.controls]]
     pose = np.zeros((r.n_samples, 6))

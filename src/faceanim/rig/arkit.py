@@ -8,8 +8,11 @@ Neumann's expression cloning does), and names them as Apple does (``eyeBlinkLeft
 Right are the subject's own sides). ICT splits ``browInnerUp`` and ``cheekPuff`` in halves: their
 sum is the ARKit shape.
 
-This is playback of recorded curves on a face: the shapes are the generic head's, carried over,
-not a rig generated from the face's own geometry.
+Each displacement is rebuilt on the face's own surface from the patterns of ICT's artist-made
+shapes (learned, not copied: a face that is not ICT's gets its own). :func:`arkit_shapes` adds
+what ICT's shapes lack: the ``eyeLook*`` shapes also turn the eyeballs, by the angles a real Live
+Link Face take records at weight 1 (:data:`LOOK_ANGLES`). ``faceanim rig`` and ``faceanim arkit
+play`` both use it.
 """
 
 from __future__ import annotations
@@ -44,3 +47,53 @@ def arkit_rig(face: Face) -> tuple[Rig, list[str]]:
             continue
         shapes[apple_name(column)] = sum(ict.blendshape(n) for n in parts)
     return Rig.from_blendshapes(face.mesh, shapes), missing
+
+
+# radians an eyeball turns at look weight 1: the Live Link Face take in ../shared/data/arkit-curves,
+# its eye yaw/pitch regressed on the look curves (r = 0.999 yaw, 0.996 pitch; both eyes agree to 0.01)
+LOOK_ANGLES = {"Out": 0.58, "In": 0.63, "Up": 0.45, "Down": 0.62}
+
+
+def _turn(points: np.ndarray, centre: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """Displacement of ``points`` turned by ``angle`` about the line through ``centre`` along the
+    unit ``axis`` (Rodrigues)."""
+    from scipy.spatial.transform import Rotation
+
+    r = Rotation.from_rotvec(axis * angle).as_matrix()
+    return (points - centre) @ r.T + centre - points
+
+
+def _look_shapes(face: Face, eyes: dict) -> dict[str, np.ndarray]:
+    """The eyeballs' part of the eight ``eyeLook*`` shapes: each eyeball turned about its centre
+    in the face's own axes (x to the subject's left, y up, z forward)."""
+    right, up, forward = face.frame.rotation
+    v = face.mesh.vertices
+    out = {}
+    for side, word in (("L", "Left"), ("R", "Right")):
+        if eyes.get(side) is None:
+            continue
+        rows, centre = eyes[side]
+        outward = right if side == "L" else -right  # the subject's left eye looks out to its left
+        # the direction the pupil moves, and the axis that turns forward into it
+        for look, towards in (("Out", outward), ("In", -outward), ("Up", up), ("Down", -up)):
+            axis = np.cross(forward, towards)
+            d = np.zeros_like(v)
+            d[rows] = _turn(v[rows], centre, axis / np.linalg.norm(axis), LOOK_ANGLES[look])
+            out[f"eyeLook{look}{word}"] = d
+    return out
+
+
+def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """ARKit's shapes on ``face``: :func:`arkit_rig`'s, with the ``eyeLook*`` shapes also turning
+    the eyeballs ``eyes`` (:attr:`FapRig.eyes <faceanim.rig.mpeg4.FapRig>`; found when not given),
+    and the names it cannot make, with why."""
+    if eyes is None:
+        from faceanim.rig.mpeg4 import FapRig
+
+        eyes = FapRig.build(face).eyes
+    rig, missing = arkit_rig(face)
+    shapes = {n: rig.blendshape(n) for n in rig.controls}
+    for name, d in _look_shapes(face, eyes).items():
+        shapes[name] = shapes[name] + d
+    skipped = {n: "no learned pattern (ICT FaceKit has no such shape)" for n in missing}
+    return shapes, skipped
