@@ -180,8 +180,11 @@ WRITER = textwrap.dedent("""
 def test_kill_during_a_write_leaves_no_temp_file(tmp_path, sig):
     out = tmp_path / "out.json"
     env = {**os.environ, "PYTHONPATH": SRC}
+    # the signal at its default in the writer, however the tests were started (under nohup,
+    # SIGHUP comes ignored, and a write rightly leaves an ignored signal ignored)
     proc = subprocess.Popen([sys.executable, "-c", WRITER, str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env)
+                            stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=lambda: signal.signal(sig, signal.SIG_DFL))
     try:
         tmp_name = proc.stdout.readline().strip()
         assert TEMP.match(tmp_name) and listing(tmp_path) == [tmp_name]
