@@ -76,8 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "export glTF/OBJ/.fap/PNG/MP4.")
     p.add_argument("--version", action="version", version=f"faceanim {_version()}")
     p.add_argument("--verbose", action="store_true", help="show MediaPipe's log and Python tracebacks")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser,
-                           metavar="{demo,photo,track,mocap,perform,arkit,landmarks,deform,render,preprocess,au,transfer,wires,say,fap,direct}")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     d = sub.add_parser("demo", help="animate the embedded default face: GLB, MP4 and PNGs", formatter_class=fmt)
     d.add_argument("--out", default="faceanim-demo", help="output folder")
@@ -89,6 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     video.register(sub)
     for group in (mesh, rig, facs, wires, mpeg4, view):
         group.register(sub)
+    sub.metavar = "{" + ",".join(sub.choices) + "}"  # the commands, each once (not their aliases)
     for action in sub.choices.values():
         _defaults_everywhere(action, fmt)
     return p
