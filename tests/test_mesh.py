@@ -271,3 +271,20 @@ def test_a_folder_is_not_a_mesh(tmp_path):
     (tmp_path / "d.obj").mkdir()
     with pytest.raises(MeshError, match="is a folder"):
         load_mesh(tmp_path / "d.obj")
+
+
+def test_a_pickled_mesh_answers_closest_point_queries_as_before():
+    """A mesh sent to another process (faceanim batch ships bound faces to Dask workers) must not
+    carry trimesh's spatial index: unpickled, that index finds no triangle (IndexError)."""
+    import pickle
+
+    from faceanim.face.face import Face
+
+    face = Face.default()
+    mesh = face.mesh
+    skin = face.skin[mesh.faces].all(axis=1)
+    points = mesh.vertices[::500] + 0.001
+    before = mesh.closest_points(points, skin)
+    again = pickle.loads(pickle.dumps(mesh)).closest_points(points, skin)
+    for a, b in zip(before, again):
+        assert np.array_equal(a, b)

@@ -97,9 +97,28 @@ def face_path(args, required: bool = False):
     return given[0] if given else None
 
 
+# faces already bound, by (mesh path, landmarks path, forward, up): ``faceanim batch`` sets this in
+# a worker so the tasks on one face share one bound Face (None: load every time)
+BOUND_FACES: dict | None = None
+# the files a command reported writing (``faceanim batch`` collects them; None: not collected)
+REPORTED: list | None = None
+
+
+def face_key(args, required: bool = False) -> tuple:
+    """What a face is loaded from: (mesh path or None for the default, landmarks, forward, up)."""
+    path = face_path(args, required)
+    path = None if path in (None, "default") else str(Path(path).resolve())
+    lms = getattr(args, "landmarks", None)
+    return (path, str(Path(lms).resolve()) if lms else None, getattr(args, "forward", "+z"), getattr(args, "up", "+y"))
+
+
 def load_face(args, required: bool = False):
     from faceanim.face.face import Face
 
+    if BOUND_FACES is not None:
+        bound = BOUND_FACES.get(face_key(args, required))
+        if bound is not None:
+            return bound
     return Face.load(face_path(args, required), getattr(args, "landmarks", None),
                      getattr(args, "forward", "+z"), getattr(args, "up", "+y"))
 
@@ -174,7 +193,14 @@ def outputs_together():
         raise
 
 
+def note_written(paths) -> None:
+    """Collect the files a command wrote (for ``faceanim batch``), without printing."""
+    if REPORTED is not None:
+        REPORTED.extend(str(p) for p in paths)
+
+
 def report(paths) -> None:
+    note_written(paths)
     print("wrote " + ", ".join(str(p) for p in paths))
 
 

@@ -17,6 +17,7 @@ from faceanim.cli.common import (
     add_output,
     check_outputs,
     load_face,
+    note_written,
     progress,
 )
 from faceanim.limits import DEFAULT_FPS
@@ -104,6 +105,7 @@ def _cmd_say(args) -> None:
         lip_gap = 0.0 if Path(args.output).suffix.lower() == ".fap" else rig.lip_gap
         stream = speech_stream(lip_gap, phones, args.fps, extra, name=Path(args.output).stem)
         written = _write(args, rig, stream, face, wav)
+    note_written(written)
     print(f"wrote {', '.join(map(str, written))} ({stream.n_frames} frames, {len(phones)} phones, "
           f"{stream.n_frames / stream.fps:.1f} s)")
 
@@ -124,6 +126,7 @@ def _cmd_fap_play(args) -> None:
     for warning in rig.check(stream):
         print(f"faceanim fap play: warning: {warning}", file=sys.stderr)
     written = _write(args, rig, stream, face, Path(args.audio) if args.audio else None)
+    note_written(written)
     print(f"wrote {', '.join(map(str, written))} ({stream.n_frames} frames at {stream.fps:g} fps)")
 
 
@@ -161,6 +164,7 @@ def _cmd_fap_write(args) -> None:
         scene = build_scene({"fps": args.fps, "events": events}, 0.0, Path(tmp))
         stream = scene_stream(scene, Path(args.output).stem)
         write_fap(args.output, stream)
+    note_written([args.output])
     print(f"wrote {args.output} ({stream.n_frames} frames at {stream.fps:g} fps)")
 
 
@@ -189,6 +193,7 @@ def _cmd_direct(args) -> None:
         stream = scene_stream(scene, Path(args.output).stem)
         audio = mix_speech(scene, Path(tmp) / "track.wav")
         written = _write(args, rig, stream, face, audio)
+    note_written(written)
     print(f"wrote {', '.join(map(str, written))} ({stream.n_frames} frames, {len(scene.actions)} actions, "
           f"{scene.duration:.1f} s)")
 

@@ -16,6 +16,7 @@ from faceanim.cli.common import (
     add_output,
     check_outputs,
     load_face,
+    note_written,
     progress,
     report,
     write_pose,
@@ -41,6 +42,7 @@ def _cmd_extract(args) -> None:
     moved = np.linalg.norm((template.vertices - base.vertices)[region])
     err = np.linalg.norm((t.rebuild(base, bound) - template.vertices)[region]) / moved if moved > 0 else 0.0
     t.save(args.output)
+    note_written([args.output])
     print(f"wrote {args.output}: {len(wireset.wires)} wires, {t.n_numbers} numbers for the template's "
           f"{3 * template.n_vertices} ({3 * template.n_vertices / t.n_numbers:.0f}x smaller); rebuild error "
           f"{err:.3f} of the template's motion over the face")
@@ -84,6 +86,7 @@ def _cmd_blend(args) -> None:
         with progress(len(curves), "rendering", args.quiet) as bar:
             render_curves(rig, curves, args.output, args.fps, face.view(), args.size, progress=bar)
     n_seg = len(templates) - 1
+    note_written([args.output])
     print(f"wrote {args.output} ({len(curves)} frames, {n_seg} blend{'s' if n_seg > 1 else ''})")
 
 

@@ -85,6 +85,14 @@ class Mesh:
     def n_faces(self) -> int:
         return self.faces.shape[0]
 
+    def __getstate__(self) -> dict:
+        # a pickled mesh (e.g. a bound face sent to a batch worker) leaves its trimesh copies behind:
+        # their spatial index (rtree) does not survive pickling and answers later queries wrongly
+        state = self.__dict__.copy()
+        state.pop("trimesh", None)
+        state["_parts"] = {}
+        return state
+
     @cached_property
     def edges(self) -> np.ndarray:
         """(E, 2) unique undirected edges, smaller index first."""

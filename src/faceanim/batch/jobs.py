@@ -1,0 +1,249 @@
+"""Job files: read, check and expand into tasks.
+
+A job file (YAML or JSON) has four keys::
+
+    operation: transfer                  # a faceanim command that makes files
+    inputs:                              # the command's input arguments by CLI name
+      source_neutral: scans/pose_0.obj   #   a path,
+      source_expressive: scans/pose_*.obj  # a glob (sorted matches),
+      target: [heads/a.obj, heads/b.obj]   # a list of paths or globs,
+      transcript: "clips/{audio}.txt"    #   or a pattern on an earlier input's stem
+    options: {au: all, magnitude: 1.0}   # the command's other options, as on the command line
+    output: "{target}/{source_expressive}.obj"   # under OUTDIR; {name} is an input's stem
+
+Paths are relative to the job file's folder. The tasks are every combination of the inputs (a
+pattern input follows the inputs it names). Every error names the key and the line it is on.
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+import string
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from faceanim.errors import FaceAnimError, shown
+
+MAX_JOB_BYTES = 1 << 20  # a job file is a few lines; a megabyte is not one
+MAX_TASKS = 1_000_000  # combinations of the inputs
+MAX_MATCHES = 200_000  # files one glob may match
+KEYS = ("operation", "inputs", "options", "output")
+
+
+class JobError(FaceAnimError):
+    """A job file that cannot be run as written."""
+
+
+@dataclass
+class Job:
+    """A checked job: the operation, input names in order, options, output pattern, the job
+    file's folder, and the source line of each key (``lines["inputs.target"]``)."""
+
+    operation: str
+    inputs: dict[str, list[str] | str]
+    options: dict[str, object]
+    output: str
+    base: Path
+    source: str = "job"
+    lines: dict[str, int] = field(default_factory=dict)
+
+    def where(self, key: str) -> str:
+        line = self.lines.get(key)
+        return f"{self.source}, line {line}" if line else self.source
+
+
+@dataclass(frozen=True)
+class Task:
+    """One combination: input name -> path, and the output path (under the output folder)."""
+
+    inputs: tuple[tuple[str, str], ...]
+    output: str
+
+    @property
+    def input_paths(self) -> dict[str, str]:
+        return dict(self.inputs)
+
+
+def _lines(text: str) -> dict[str, int]:
+    """Line numbers (1-based) of the top-level keys and of the keys under inputs/options."""
+    import yaml
+
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return {}
+    out: dict[str, int] = {}
+    if isinstance(node, yaml.MappingNode):
+        for k, v in node.value:
+            if isinstance(k, yaml.ScalarNode):
+                out[str(k.value)] = k.start_mark.line + 1
+                if isinstance(v, yaml.MappingNode):
+                    for k2, _ in v.value:
+                        if isinstance(k2, yaml.ScalarNode):
+                            out[f"{k.value}.{k2.value}"] = k2.start_mark.line + 1
+    return out
+
+
+def read_job(path) -> Job:
+    """A job file, checked for shape (not yet against the operation: see the command layer)."""
+    import yaml
+
+    path = Path(path)
+    name = shown(path.name, 60, tail=True)
+    try:
+        if path.is_dir():
+            raise JobError(f"job file '{name}' is a folder; give a .yaml or .json file")
+        size = path.stat().st_size
+        if size > MAX_JOB_BYTES:
+            raise JobError(f"job file '{name}' is {size} bytes; a job file is a few lines (at most 1 MiB)")
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise JobError(f"job file '{name}' does not exist; give the path of a .yaml or .json job file") from None
+    except OSError:
+        raise JobError(f"job file '{name}' cannot be read; check its permissions") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise JobError(f"job file '{name}' is not UTF-8 text; write it as YAML or JSON") from None
+    try:
+        doc = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (yaml.YAMLError, ValueError) as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else getattr(exc, "lineno", None)
+        at = f" (line {line})" if line else ""
+        raise JobError(f"job file '{name}' is not valid {'JSON' if path.suffix.lower() == '.json' else 'YAML'}"
+                       f"{at}; fix its syntax") from None
+    except RecursionError:
+        raise JobError(f"job file '{name}' nests too deeply; a job file is four keys") from None
+    lines = _lines(text)
+
+    def at(key: str) -> str:
+        return f"{name}, line {lines[key]}" if key in lines else name
+
+    if not isinstance(doc, dict):
+        raise JobError(f"job file '{name}' must be a mapping with the keys {', '.join(KEYS)}")
+    unknown = [k for k in doc if k not in KEYS]
+    if unknown:
+        raise JobError(f"unknown key '{shown(unknown[0])}' ({at(str(unknown[0]))}); a job file has: {', '.join(KEYS)}")
+    for key in ("operation", "inputs", "output"):
+        if key not in doc:
+            raise JobError(f"job file '{name}' has no '{key}'; it needs: {', '.join(KEYS)} (options may be left out)")
+    operation = doc["operation"]
+    if not isinstance(operation, str) or not operation.strip():
+        raise JobError(f"operation ({at('operation')}) must be a command name such as transfer or 'wires apply'")
+    inputs = doc["inputs"]
+    if not isinstance(inputs, dict) or not inputs:
+        raise JobError(f"inputs ({at('inputs')}) must map each input's name to a path, a glob or a list")
+    clean_inputs: dict[str, list[str] | str] = {}
+    for k, v in inputs.items():
+        key = str(k).replace("-", "_")
+        where = at(f"inputs.{k}")
+        if key in clean_inputs:
+            raise JobError(f"input '{shown(k)}' ({where}) is given twice")
+        if isinstance(v, str) and v.strip():
+            clean_inputs[key] = v
+        elif isinstance(v, list) and v and all(isinstance(x, str) and x.strip() for x in v):
+            clean_inputs[key] = list(v)
+        else:
+            raise JobError(f"input '{shown(k)}' ({where}) must be a path, a glob or a non-empty list of them")
+    options = doc.get("options") or {}
+    if not isinstance(options, dict):
+        raise JobError(f"options ({at('options')}) must map option names to values")
+    clean_options: dict[str, object] = {}
+    for k, v in options.items():
+        key = str(k).replace("-", "_")
+        if key in clean_options or key in clean_inputs:
+            raise JobError(f"option '{shown(k)}' ({at(f'options.{k}')}) is given twice")
+        ok = v is None or isinstance(v, (bool, int, float, str)) or (
+            isinstance(v, list) and all(isinstance(x, (bool, int, float, str)) and not isinstance(x, bool) for x in v))
+        if not ok:
+            raise JobError(f"option '{shown(k)}' ({at(f'options.{k}')}) must be a number, a word, true/false or a "
+                           "list of numbers or words")
+        clean_options[key] = v
+    output = doc["output"]
+    if not isinstance(output, str) or not output.strip():
+        raise JobError(f"output ({at('output')}) must be a file-name pattern such as \"{{target}}.glb\"")
+    norm = {}
+    for k, v in lines.items():
+        head, _, rest = k.partition(".")
+        norm[f"{head}.{rest.replace('-', '_')}" if rest else k] = v
+    return Job(operation.strip(), clean_inputs, clean_options, output.strip(), path.resolve().parent, name, norm)
+
+
+def _fields(pattern: str, what: str) -> list[str]:
+    try:
+        return [f for _, f, _, _ in string.Formatter().parse(pattern) if f is not None]
+    except ValueError:
+        raise JobError(f"{what} '{shown(pattern, 80)}' has an unmatched brace; write {{name}} for an input's stem") \
+            from None
+
+
+def _expand_one(job: Job, name: str, value: str, known: dict[str, str]) -> list[str]:
+    """The paths one input entry stands for, given the stems of the earlier inputs ``known``."""
+    where = job.where(f"inputs.{name}")
+    fields = _fields(value, f"input '{name}' ({where})")
+    if fields:
+        bad = [f for f in fields if f not in known]
+        if bad:
+            raise JobError(f"input '{name}' ({where}) names '{{{shown(bad[0])}}}', which is not an earlier input; "
+                           f"use one of: {', '.join(known) or '(none before it)'}")
+        value = value.format(**known)
+    path = Path(value) if Path(value).is_absolute() else job.base / value
+    if glob.has_magic(value):
+        matches = []
+        for m in glob.iglob(str(path), recursive=True):
+            matches.append(m)
+            if len(matches) > MAX_MATCHES:
+                raise JobError(f"input '{name}' ({where}) matches more than {MAX_MATCHES} files; narrow the glob")
+        files = sorted(m for m in matches if Path(m).is_file())
+        if not files:
+            raise JobError(f"input '{name}' ({where}): '{shown(value, 80)}' matches no file")
+        return files
+    if not path.is_file():
+        raise JobError(f"input '{name}' ({where}): '{shown(value, 80)}' is not a file"
+                       + ("" if not fields else " (from its pattern)"))
+    return [str(path)]
+
+
+def expand(job: Job) -> list[Task]:
+    """Every combination of the inputs as tasks (in a fixed order: the inputs in the file's order,
+    each one's files sorted), each with its output path; refused when two tasks would write one
+    file or an output leaves the output folder."""
+    names = list(job.inputs)
+    out_fields = _fields(job.output, f"output ({job.where('output')})")
+    bad = [f for f in out_fields if f not in names]
+    if bad:
+        raise JobError(f"output ({job.where('output')}) names '{{{shown(bad[0])}}}', which is not an input; use "
+                       f"one of: {', '.join(names)}")
+    tasks: list[Task] = []
+
+    def walk(k: int, chosen: list[tuple[str, str]]) -> None:
+        if k == len(names):
+            stems = {n: Path(p).stem for n, p in chosen}
+            out = job.output.format(**stems)
+            tasks.append(Task(tuple(chosen), out))
+            if len(tasks) > MAX_TASKS:
+                raise JobError(f"the inputs make more than {MAX_TASKS} tasks; split the job")
+            return
+        name = names[k]
+        value = job.inputs[name]
+        known = {n: Path(p).stem for n, p in chosen}
+        entries = value if isinstance(value, list) else [value]
+        for entry in entries:
+            for path in _expand_one(job, name, entry, known):
+                walk(k + 1, chosen + [(name, path)])
+
+    walk(0, [])
+    seen: dict[str, int] = {}
+    for t in tasks:
+        p = Path(t.output)
+        if p.is_absolute() or ".." in p.parts or not p.name:
+            raise JobError(f"output ({job.where('output')}) must stay inside the output folder: "
+                           f"'{shown(t.output, 80)}'")
+        seen[t.output] = seen.get(t.output, 0) + 1
+    twice = [o for o, n in seen.items() if n > 1]
+    if twice:
+        raise JobError(f"output ({job.where('output')}) gives '{shown(twice[0], 80)}' to {seen[twice[0]]} tasks; "
+                       "put every varying input's {name} in the pattern")
+    return tasks

@@ -1,0 +1,247 @@
+"""``faceanim batch JOBS.yaml -o OUTDIR``: one faceanim command over every combination of its
+inputs, on Dask (:mod:`faceanim.batch`). Each task is the command itself, called in the worker's
+process with its face already bound (not a shell-out)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import sys
+import time
+from functools import lru_cache
+from pathlib import Path
+
+from faceanim.cli.common import CommandError
+from faceanim.errors import FaceAnimError, shown
+
+# the operations a batch may run: name -> the command's words; and those that bind a face
+OPERATIONS = {"rig": ("rig",), "au": ("au",), "transfer": ("transfer",), "wires extract": ("wires", "extract"),
+              "wires apply": ("wires", "apply"), "say": ("say",), "fap play": ("fap", "play"),
+              "perform": ("perform",), "photo": ("photo",), "render": ("render",)}
+FACE_OPERATIONS = {"rig", "au", "transfer", "wires extract", "wires apply", "say", "fap play", "perform"}
+MAX_WORKERS = 256
+MAX_RETRIES = 10
+
+
+@lru_cache(maxsize=1)
+def _parser():
+    from faceanim.cli import build_parser
+
+    return build_parser()
+
+
+def _subparser(words):
+    import argparse
+
+    p = _parser()
+    for w in words:
+        sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))
+        p = sub.choices[w]
+    return p
+
+
+def _arguments(words) -> dict[str, tuple[str, object]]:
+    """name (underscored) -> ("option", its long flag) or ("positional", action), for a command's
+    arguments other than the output and help."""
+    import argparse
+
+    out: dict[str, tuple[str, object]] = {}
+    for a in _subparser(words)._actions:
+        if isinstance(a, argparse._HelpAction) or a.dest in ("output", "func"):
+            continue
+        if a.option_strings:
+            for flag in a.option_strings:
+                if flag.startswith("--"):
+                    out.setdefault(flag[2:].replace("-", "_"), ("option", flag, a))
+        elif a.dest == "face_positional":
+            continue  # the face is --face
+        else:
+            out[a.dest] = ("positional", a.dest, a)
+    return out
+
+
+def _argv_part(name: str, value, spec, where: str) -> list[str]:
+    import argparse
+
+    kind, flag, action = spec
+    if kind == "positional":
+        return [str(value)]
+    if isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction)):
+        if not isinstance(value, bool):
+            raise CommandError(f"option '{name}' ({where}) is a switch: give true or false")
+        return [flag] if value else []
+    if isinstance(value, bool):
+        raise CommandError(f"option '{name}' ({where}) takes a value, not {str(value).lower()}")
+    if value is None:
+        return []
+    values = value if isinstance(value, list) else [value]
+    if len(values) > 1 and not isinstance(action, argparse._AppendAction) and action.nargs not in ("+", "*"):
+        raise CommandError(f"option '{name}' ({where}) takes one value, not a list")
+    if isinstance(action, argparse._AppendAction):
+        return [x for v in values for x in (flag, str(v))]
+    return [flag, *[str(v) for v in values]]
+
+
+def plan(job, out_dir: Path):
+    """The job's tasks as :class:`~faceanim.batch.runner.PlannedTask` (checked: operation,
+    input and option names, and each task's command line as the command itself parses it)."""
+    from faceanim.batch.jobs import expand
+    from faceanim.batch.manifest import file_hash, signature
+    from faceanim.batch.runner import PlannedTask
+    from faceanim.cli.common import face_key
+
+    words = OPERATIONS.get(job.operation)
+    if words is None:
+        raise CommandError(f"unknown operation '{shown(job.operation)}' ({job.where('operation')}); choose one of: "
+                           f"{', '.join(OPERATIONS)}")
+    known = _arguments(words)
+    for group, names in (("inputs", job.inputs), ("options", job.options)):
+        for name in names:
+            if name not in known:
+                raise CommandError(f"unknown {group[:-1]} '{shown(name)}' for {job.operation} "
+                                   f"({job.where(f'{group}.{name}')}); it takes: {', '.join(sorted(known))}")
+    for name, spec in known.items():
+        action = spec[2]
+        if getattr(action, "required", False) and name not in job.inputs and name not in job.options:
+            raise CommandError(f"{job.operation} needs '{name}' ({job.where('inputs')}); add it to inputs or options")
+    tasks = expand(job)
+    hashes: dict = {}
+    option_argv: list[str] = []
+    for name, value in job.options.items():
+        option_argv += _argv_part(name, value, known[name], job.where(f"options.{name}"))
+    parser = _parser()
+    planned = []
+    for t in tasks:
+        argv = list(words)
+        positional = []
+        for name, path in t.inputs:
+            part = _argv_part(name, path, known[name], job.where(f"inputs.{name}"))
+            (positional if known[name][0] == "positional" else argv).extend(part)
+        out = out_dir / t.output
+        argv = argv[:len(words)] + positional + argv[len(words):] + option_argv + ["-o", str(out)]
+        err = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(err):
+                args = parser.parse_args(argv)
+        except SystemExit:
+            message = err.getvalue().strip().splitlines()[-1] if err.getvalue().strip() else "bad arguments"
+            message = message.split(": error: ", 1)[-1]
+            raise CommandError(f"{job.source}: {job.operation} would refuse a task's arguments: "
+                               f"{shown(message, 300)}") from None
+        face = face_key(args) if job.operation in FACE_OPERATIONS else None
+        try:
+            inputs = {name: file_hash(path, hashes) for name, path in t.inputs}
+        except OSError:
+            raise CommandError(f"an input of task '{shown(t.output, 80)}' cannot be read; check its permissions") \
+                from None
+        recorded = argv[:-1] + [t.output]  # the signature does not depend on where OUTDIR is
+        planned.append(PlannedTask(t.output, argv, face, signature(job.operation, recorded, inputs)))
+    return planned
+
+
+def bind(face):
+    """A bound face for ``face_key`` (mesh path, landmarks, forward, up): loaded, landmarks
+    found, its frame and regions computed once."""
+    from faceanim.face.face import Face
+
+    path, landmarks, forward, up = face
+    f = Face.load(path, landmarks, forward, up)
+    for part in ("frame", "skin", "face_region"):  # cached properties: computed here, shipped with it
+        getattr(f, part, None)
+    return f
+
+
+def work(argv, out_dir, bound) -> dict:
+    """Run one task (a command line the job's check already parsed) in this process: the
+    command's own function, its face the bound one, its printing kept from the terminal."""
+    from faceanim.cli import common
+
+    args = _parser().parse_args(argv)
+    out = Path(args.output)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    common.BOUND_FACES = {common.face_key(args): bound} if bound is not None else None
+    common.REPORTED = []
+    start = time.perf_counter()
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):
+            args.func(args)
+        written = common.REPORTED or [str(out)]
+        root = Path(out_dir).resolve()
+        outputs = sorted({str(Path(p).resolve().relative_to(root)) for p in written
+                          if Path(p).resolve().is_relative_to(root)})
+        return {"state": "done", "outputs": outputs, "error": "", "seconds": time.perf_counter() - start}
+    except FaceAnimError as exc:
+        message = "".join(c if c.isprintable() else "?" for c in str(exc))
+        return {"state": "failed", "outputs": [], "error": message, "seconds": time.perf_counter() - start}
+    finally:
+        common.BOUND_FACES = None
+        common.REPORTED = None
+
+
+def _cmd_batch(args) -> None:
+    from faceanim.batch.jobs import read_job
+    from faceanim.batch.runner import run
+    from faceanim.io.files import check_output_path
+
+    if args.workers is not None and args.scheduler:
+        raise CommandError("--workers starts a local cluster; with --scheduler the cluster has its own workers")
+    job = read_job(args.job)
+    out_dir = Path(args.output)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise CommandError(f"the output '{shown(out_dir, 80, tail=True)}' is a file; give a folder for the outputs")
+    if not out_dir.parent.is_dir():
+        raise CommandError(f"the output folder's parent '{shown(out_dir.parent, 80, tail=True)}' does not exist; "
+                           "create it first")
+    tasks = plan(job, out_dir.resolve())
+    out_dir.mkdir(exist_ok=True)
+    check_output_path(out_dir / "faceanim-batch.sqlite")
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(tasks), desc="tasks", unit="task", disable=args.quiet or not sys.stderr.isatty(),
+               leave=False)
+
+    def started(summary) -> None:
+        bar.total = len(tasks) - len(summary.skipped)
+        bar.refresh()
+        where = args.scheduler or f"a local cluster of {summary.workers} worker processes"
+        print(f"{len(tasks)} tasks ({len(summary.skipped)} done before) on {shown(where, 80)}"
+              + (f"; dashboard {summary.dashboard}" if summary.dashboard else ""), flush=True)
+
+    try:
+        summary = run(tasks, out_dir, bind, work, scheduler=args.scheduler, workers=args.workers,
+                      retries=args.retries, bind_faces=not args.no_bind,
+                      progress=lambda n: bar.update(n - bar.n), on_start=started)
+    finally:
+        bar.close()
+    print(f"{len(summary.done)} done, {len(summary.skipped)} skipped (done before), {len(summary.failed)} failed "
+          f"in {summary.seconds:.1f} s")
+    for output, error in summary.failed.items():
+        print(f"failed: {shown(output, 120)}: {error}", file=sys.stderr)
+    if summary.failed:
+        raise SystemExit(1)
+
+
+def register(sub) -> None:
+    from faceanim.cli.common import _arg_type
+
+    p = sub.add_parser("batch", help="run one command over a whole dataset on Dask (a local cluster, or "
+                                     "--scheduler): every combination of its inputs, resumable",
+                       description="Run one faceanim command over every combination of its inputs, on Dask: a "
+                                   "LocalCluster on this machine, or the cluster at --scheduler. The job file "
+                                   "(YAML or JSON) has operation, inputs (each input by its CLI name: a path, a "
+                                   "glob, a list, or a pattern on an earlier input such as clips/{audio}.txt), "
+                                   "options, and output (a file-name pattern under OUTDIR with {name} the stem of "
+                                   "each input). A manifest in OUTDIR records every task: a rerun skips what is "
+                                   "done and redoes what changed. Exit 1 if any task failed.")
+    p.add_argument("job", metavar="JOBS.yaml", help="the job file (.yaml, .yml or .json)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786 "
+                                                          "(default: start a local cluster)")
+    p.add_argument("--workers", type=_arg_type("--workers", 1, MAX_WORKERS, integer=True),
+                   help="worker processes of the local cluster (default: one per core)")
+    p.add_argument("--retries", type=_arg_type("--retries", 0, MAX_RETRIES, integer=True), default=2,
+                   help="times a task that crashes is tried again")
+    p.add_argument("--no-bind", action="store_true", help="bind the face in every task instead of once per face "
+                                                          "(to measure what binding once saves)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="the output folder (made if missing)")
+    p.set_defaults(func=_cmd_batch)
