@@ -160,11 +160,16 @@ def test_on_the_ict_head_shuffled_the_shapes_match_icts_own():
         real = sum(_ict_obj(n) - neutral.vertices for n in ict)
         gen = auto.shapes[apple][inv]
         m = np.linalg.norm(real, axis=1)
-        m[24591:] = 0  # ICT's transparent eye overlays are not part of the generic head
+        m[24591:25351] = 0  # ICT's transparent eye overlays are not part of the generic head
         region = m > 0.05 * m.max()
         errors[apple] = np.linalg.norm(gen[region] - real[region]) / np.linalg.norm(real[region])
     assert np.median(list(errors.values())) < 0.15, errors
-    assert max(errors.values()) < 0.3, errors
+    assert max(errors.values()) < 0.6, errors  # eyeBlinkLeft 0.48: ICT's lashes turn as the lid closes
+    # ICT's eyelashes, a piece the generic head lacks, ride on their lids (they stayed still before)
+    lashes = slice(25351, 26719)
+    up = sum(_ict_obj(n) - neutral.vertices for n in ["eyeLookUp_L"])[lashes]
+    gen = auto.shapes["eyeLookUpLeft"][inv][lashes]
+    assert np.linalg.norm(gen - up) < 0.35 * np.linalg.norm(up)
 
 
 def test_vrm_binds_every_preset_on_a_face_with_eyes(tmp_path, capsys):
@@ -276,3 +281,47 @@ def test_arkit_play_drives_the_same_shapes_rig_writes(tmp_path, default_rig):
     assert names == ["eyeLookOutLeft", "jawOpen"]
     for n in names:
         assert np.allclose(played[n], rigged[n], atol=1e-7), n
+
+
+def _lower_margin_distance(face, shape, slit):
+    """Each upper-lid margin point's distance to the lower lid's margin (a polyline through the
+    lower margin points and the corners), both moved by ``shape``."""
+    from scipy.spatial import cKDTree
+
+    from faceanim.face.landmarks import SLITS
+
+    v = face.mesh.vertices + shape
+    skin = np.flatnonzero(face.skin)
+    tree = cKDTree(face.mesh.vertices[skin])
+    spec = SLITS[slit]
+    up = skin[tree.query(face.landmarks[list(spec["upper"])])[1]]
+    lo = skin[tree.query(face.landmarks[list(spec["lower"]) + list(spec["corners"])])[1]]
+    a, b = face.landmarks[list(spec["corners"])]
+    axis = (b - a) / np.linalg.norm(b - a)
+    order = lo[np.argsort(face.mesh.vertices[lo] @ axis)]
+    line = np.vstack([np.linspace(v[p], v[q], 50) for p, q in zip(order[:-1], order[1:])])
+    return np.min(np.linalg.norm(v[up][:, None] - line[None], axis=2), axis=1)
+
+
+@pytest.mark.parametrize("which", ["default", "facewarehouse"])
+def test_a_blink_closes_the_eye(which):
+    """At weight 1 each upper-lid margin point meets the lower lid (within 0.5% of the eye span);
+    carried alone, ICT's lid travel left 40% of the default face's eye open."""
+    from faceanim.face.face import landmarks_478
+    from faceanim.face.landmarks import detect_landmarks
+    from faceanim.io.meshio import load_mesh
+    from faceanim.rig.arkit import arkit_shapes
+
+    if which == "default":
+        face = Face.default()
+    else:
+        if not FW.is_dir():
+            pytest.skip("../shared/data/facewarehouse-tester1 is not here")
+        mesh = load_mesh(FW / "pose_0.obj")
+        face = Face(mesh, landmarks_478(mesh, detect_landmarks(mesh)))
+    shapes, _ = arkit_shapes(face)
+    for slit, name in (("eye_L", "eyeBlinkLeft"), ("eye_R", "eyeBlinkRight")):
+        rest = _lower_margin_distance(face, 0 * shapes[name], slit)
+        closed = _lower_margin_distance(face, shapes[name], slit)
+        assert rest.max() > 0.05 * face.frame.iod  # the eye is open at rest
+        assert closed.max() < 0.005 * face.frame.iod, (slit, closed / face.frame.iod)

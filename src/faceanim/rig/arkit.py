@@ -83,6 +83,55 @@ def _look_shapes(face: Face, eyes: dict) -> dict[str, np.ndarray]:
     return out
 
 
+LID_REACH = 0.6  # the closure correction fades out this far from the upper lid's margin (slit widths)
+
+
+def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.ndarray:
+    """The correction that makes a carried blink close the eye: ICT's lids travel ICT's eye
+    opening, which on another face leaves a slit (40% of it on the default face) or overshoots.
+    Each upper-margin point moves by what still parts it from the lower margin (at the same place
+    along the slit, both as the blink leaves them); the upper lid's skin (and what rides on it,
+    such as lashes, not the eyeballs) follows by inverse-distance weights, fading to nothing
+    :data:`LID_REACH` slit widths from the margin."""
+    from scipy.spatial import cKDTree
+
+    from faceanim.face.landmarks import SLITS
+    from faceanim.face.regions import slit_sides, smoothstep
+
+    v = face.mesh.vertices
+    lm = face.landmarks
+    skin = np.flatnonzero(face.skin)
+    tree = cKDTree(v[skin])
+    spec = SLITS[slit]
+    upper = skin[tree.query(lm[list(spec["upper"])])[1]]
+    lower = skin[tree.query(lm[list(spec["lower"])])[1]]
+    a, b = lm[list(spec["corners"])]
+    axis = (b - a) / np.linalg.norm(b - a)
+    width = float(np.linalg.norm(b - a))
+    # the lower margin as a curve along the slit (through the corners, where the lids meet)
+    lower = np.concatenate([lower, skin[tree.query(lm[list(spec["corners"])])[1]]])
+    t_low = (v[lower] - a) @ axis
+    p_low = v[lower] + blink[lower]
+    order = np.argsort(t_low)
+    t_up = (v[upper] - a) @ axis
+    target = np.column_stack([np.interp(t_up, t_low[order], p_low[order, k]) for k in range(3)])
+    gaps = target - (v[upper] + blink[upper])
+    # who follows: the upper lid's skin near the margin, and off-skin pieces riding on it
+    movable = np.ones(len(v), bool)
+    movable[skin[slit_sides(face.mesh, lm)[slit][skin]]] = False  # the lower lid stays as carried,
+    movable[lower] = False  # its margin and the corners too (the lids meet there)
+    for part in (eyes or {}).values():
+        if part is not None:
+            movable[part[0]] = False
+    d = np.linalg.norm(v[:, None] - v[upper][None], axis=2)  # (V, 5): fine for 5 margin points
+    fade = smoothstep(1.0 - d.min(axis=1) / (LID_REACH * width)) * movable
+    near = np.flatnonzero(fade > 0)
+    w = 1.0 / (d[near] ** 2 + (0.02 * width) ** 2)
+    out = np.zeros_like(v)
+    out[near] = fade[near, None] * (w @ gaps) / w.sum(axis=1, keepdims=True)
+    return out
+
+
 def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """ARKit's shapes on ``face``: :func:`arkit_rig`'s, with the ``eyeLook*`` shapes also turning
     the eyeballs ``eyes`` (:attr:`FapRig.eyes <faceanim.rig.mpeg4.FapRig>`; found when not given),
@@ -95,5 +144,7 @@ def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.nda
     shapes = {n: rig.blendshape(n) for n in rig.controls}
     for name, d in _look_shapes(face, eyes).items():
         shapes[name] = shapes[name] + d
+    for slit, name in (("eye_L", "eyeBlinkLeft"), ("eye_R", "eyeBlinkRight")):
+        shapes[name] = shapes[name] + _lid_closure(face, shapes[name], slit, eyes)
     skipped = {n: "no learned pattern (ICT FaceKit has no such shape)" for n in missing}
     return shapes, skipped

@@ -164,13 +164,39 @@ def correspondence(face: Face, head: GenericHead | None = None,
     # a separate piece (eyelashes, a lid's tear line, one tooth) onto its own piece: the closest
     # point alone lands an eyelash on the eyeball just under it, which does not blink
     scale = float(np.linalg.norm(src_lm[LEFT_EYE_CORNERS].mean(0) - src_lm[RIGHT_EYE_CORNERS].mean(0)))
-    for mine, pool in _matching_shells(face.mesh, moved, ~tgt_skin, src, ~src_skin, SHELL_MATCH * scale):
+    matched, unmatched = _matching_shells(face.mesh, moved, ~tgt_skin, src, ~src_skin, SHELL_MATCH * scale)
+    for mine, pool in matched:
         t, b = _closest_on(src.vertices, src.faces[pool], moved[mine])
         tri[mine], bary[mine] = pool[t], b
+    # a piece the generic head has no counterpart for, at an eye and not round (eyelashes, a tear
+    # line): it rides on its lid, the skin on its side of the slit, as it is fixed to it
+    from faceanim.face.frame import face_frame
+    from faceanim.face.landmarks import SLITS
+
+    up = face_frame(src_lm).rotation[1]  # the generic head's up (the pieces are in its space now)
+    for mine in unmatched:
+        centre = moved[mine].mean(0)
+        for k, name in enumerate(SLIT_NAMES):
+            if name == "mouth":
+                continue
+            corners = src_lm[list(SLITS[name]["corners"])]
+            width = float(np.linalg.norm(corners[1] - corners[0]))
+            d = np.linalg.norm(moved[mine] - centre, axis=1)
+            round_ = d.std() < ROUND * d.mean()
+            if np.linalg.norm(centre - corners.mean(0)) > NEAR_EYE * width or round_:
+                continue
+            upper = (centre - corners.mean(0)) @ up > 0
+            pool = np.flatnonzero(t_skin & (t_upper[:, k] if upper else t_lower[:, k]))
+            if len(pool):
+                t, b = _closest_on(src.vertices, src.faces[pool], moved[mine])
+                tri[mine], bary[mine] = pool[t], b
+            break
     return tri, bary
 
 
-SHELL_MATCH = 0.05  # a target piece matches a source piece this close in centre and size (IODs)
+SHELL_MATCH = 0.05  # a target piece matches a source piece within this (IODs): centre distance + size difference
+NEAR_EYE = 1.0  # an unmatched piece this near an eye (slit widths, centre to centre) rides on its lid...
+ROUND = 0.2  # ...unless it is round (its points' distances from its centre vary less than this share)
 LEFT_EYE_CORNERS, RIGHT_EYE_CORNERS = [263, 362], [33, 133]  # MediaPipe's eye corners
 
 
@@ -196,16 +222,19 @@ def _shells(mesh, vertices: np.ndarray, off_skin: np.ndarray):
 
 
 def _matching_shells(target, moved: np.ndarray, tgt_off: np.ndarray, src, src_off: np.ndarray, tolerance: float):
-    """Pairs (target vertices, source triangles) of each target piece off the skin whose centre
-    (carried into the source's space, ``moved``) and size both come within ``tolerance`` of one
-    source piece's: the piece it is (many target pieces may match one source piece)."""
+    """The target's pieces off the skin, matched to the source's: (pairs (target vertices, source
+    triangles) for each piece whose centre (carried into the source's space, ``moved``) distance
+    plus size difference to one source piece is under ``tolerance`` (many target pieces may match
+    one source piece), the vertices of each piece that matches none)."""
     _, t_verts, t_centre, t_radius = _shells(target, moved, tgt_off)
     s_tris, _, s_centre, s_radius = _shells(src, src.vertices, src_off)
     if not len(t_verts) or not len(s_tris):
-        return []
+        return [], list(t_verts)
     score = np.linalg.norm(t_centre[:, None] - s_centre[None], axis=2) + np.abs(t_radius[:, None] - s_radius[None])
     best = np.argmin(score, axis=1)
-    return [(t_verts[k], s_tris[best[k]]) for k in range(len(t_verts)) if score[k, best[k]] < tolerance]
+    ok = score[np.arange(len(t_verts)), best] < tolerance
+    return ([(t_verts[k], s_tris[best[k]]) for k in np.flatnonzero(ok)],
+            [t_verts[k] for k in np.flatnonzero(~ok)])
 
 
 def jacobians(f, points: np.ndarray, step: float) -> np.ndarray:
