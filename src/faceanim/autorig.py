@@ -12,8 +12,10 @@ The sets (:data:`RIG_SETS`), each built from the input mesh and its landmarks al
   (ICT's own move only the lids): by the angles a real Live Link Face take records for a look
   curve at 1 (:data:`~faceanim.rig.arkit.LOOK_ANGLES`). ``tongueOut`` has no learned pattern (ICT has no such shape):
   it is left out and reported.
-- ``visemes``: the 15 Oculus visemes (``viseme_sil`` ... ``viseme_U``), which are MPEG-4's
-  visemes 0-14, posed by the face's FAP rig (jaw hinge included).
+- ``visemes``: the 15 Oculus visemes (``viseme_sil`` ... ``viseme_U``, MPEG-4's visemes 0-14)
+  as mixes of the face's own ARKit shapes (``data/visemes_arkit.json``): posed by the FAP rig
+  they came out as grimaces (a review's pictures); the ARKit shapes keep jaw, lips and teeth
+  natural.
 - ``au``: FACS action units, each with its one-sided halves (Erdogdu's control points, the AU
   library learned from real scans).
 - ``emotions``: the six basic emotions (``joy`` ... ``disgust``) as AU combinations.
@@ -35,8 +37,6 @@ from faceanim.rig.rig import Rig
 
 RIG_SETS = ("arkit", "visemes", "au", "emotions", "fap")
 
-# Oculus' 15 visemes are MPEG-4's visemes 0..14, in order
-OCULUS_VISEMES = ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "I", "O", "U")
 
 EMOTIONS = ("joy", "sadness", "surprise", "fear", "anger", "disgust")
 
@@ -73,6 +73,14 @@ def parse_sets(text: str) -> list[str]:
     return list(RIG_SETS) if "all" in asked else [s for s in RIG_SETS if s in asked]
 
 
+def viseme_mixes() -> list[dict]:
+    """The 15 Oculus visemes as ARKit mixes (``data/visemes_arkit.json``), in MPEG-4's order."""
+    import json
+    from importlib import resources
+
+    return json.loads(resources.files("faceanim").joinpath("data", "visemes_arkit.json").read_text())["visemes"]
+
+
 def _fap_scales() -> dict[int, float]:
     """Per FAP number: the largest |value| faceanim's viseme and expression tables give it."""
     from faceanim.drivers.mpeg4 import fap_set, viseme_table
@@ -88,7 +96,6 @@ def _fap_scales() -> dict[int, float]:
 def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
     """Every control of ``sets`` on ``face`` as named shapes (module docstring). ``progress``:
     an optional callable taking the name of each set as it starts."""
-    from faceanim.drivers.mpeg4 import fap_set, viseme_table
     from faceanim.face.faps import faps
     from faceanim.rig.arkit import arkit_shapes
     from faceanim.rig.mpeg4 import FapRig
@@ -98,6 +105,7 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
     if not sets:
         raise FaceAnimError(f"no rig set asked for; choose from: {', '.join(RIG_SETS)}")
     fap = FapRig.build(face) if {"arkit", "visemes", "fap"} & set(sets) else None
+    arkit = au_rig = None  # made once, for the sets that share them
     eyes = dict(fap.eyes) if fap is not None else {}
     rest = face.mesh.vertices
     shapes: dict[str, np.ndarray] = {}
@@ -122,14 +130,16 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
             progress(group)
         if group == "arkit":
             made, why = arkit_shapes(face, eyes)
+            arkit = made
             add(group, made)
             skipped.update(why)
         elif group == "visemes":
-            table = viseme_table()["visemes"]
-            add(group, {f"viseme_{OCULUS_VISEMES[int(k)]}": pose(fap_set(table[k]["faps"])) if table[k]["faps"]
-                        else np.zeros_like(rest) for k in sorted(table, key=int)})
+            if arkit is None:
+                arkit, _ = arkit_shapes(face, eyes)
+            add(group, {f"viseme_{v['oculus']}": sum((w * arkit[n] for n, w in v["arkit"].items()), np.zeros_like(rest))
+                        for v in viseme_mixes()})
         elif group in ("au", "emotions"):
-            if "au_rig" not in locals():
+            if au_rig is None:
                 au_rig = ExpressionTransfer(face).rig(default_model(), sides=True)
             names = [n for n in au_rig.controls if (n in EMOTIONS) == (group == "emotions")]
             add(group, {n: au_rig.blendshape(n) for n in names})

@@ -31,8 +31,11 @@ and adds what a VRM 1.0 consumer (three-vrm, UniVRM, VTuber applications) needs:
   and three-vrm for expression gaze).
 - **firstPerson**: the head mesh is ``thirdPersonOnly`` (a VR user's own camera sits inside it).
 
-Animations are not written (VRM 1.0 leaves them unused), nor custom expressions, spring bones or
-MToon materials: the material is the same PBR skin as the glTF.
+- **custom expressions** (``custom``): any others by name, e.g. one per ARKit blendshape for apps
+  that drive them by Apple's names ("Perfect Sync").
+
+Animations are not written (VRM 1.0 leaves them unused), nor spring bones or MToon materials: the
+material is the same PBR skin as the glTF.
 """
 
 from __future__ import annotations
@@ -199,14 +202,18 @@ def _look_at(look_at: Mapping | None) -> dict:
     return out
 
 
-def _expressions(expressions: Mapping, names: list[str], node: int) -> dict:
+def _expressions(expressions: Mapping, names: list[str], node: int, custom: bool = False) -> dict:
     if not isinstance(expressions, Mapping):
-        raise FaceAnimError(f"expressions must map VRM presets to {{morph target: weight}}, "
-                            f"not {type(expressions).__name__}")
+        raise FaceAnimError(f"expressions must map VRM {'custom names' if custom else 'presets'} to "
+                            f"{{morph target: weight}}, not {type(expressions).__name__}")
     index = {name: k for k, name in enumerate(names)}
     preset = {}
     for name, binds in expressions.items():
-        if name not in PRESETS:
+        if custom:
+            if not isinstance(name, str) or not name or not name.isprintable() or len(name) > 64 or name in PRESETS:
+                raise FaceAnimError(f"custom VRM expression name '{shown(name)}' must be 1 to 64 printable "
+                                    "characters and not a preset's name")
+        elif name not in PRESETS:
             raise FaceAnimError(f"unknown VRM expression preset '{shown(name)}'; the presets are: {', '.join(PRESETS)}")
         if not isinstance(binds, Mapping):
             raise FaceAnimError(f"VRM expression '{name}' must map morph target names to weights")
@@ -227,13 +234,13 @@ def _expressions(expressions: Mapping, names: list[str], node: int) -> dict:
         if out:  # the schema wants at least one bind when the list is there
             expr["morphTargetBinds"] = out
         preset[name] = expr
-    return {p: preset[p] for p in PRESETS if p in preset}
+    return preset if custom else {p: preset[p] for p in PRESETS if p in preset}
 
 
 def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.ndarray],
               expressions: Mapping[str, Mapping[str, float]], *, head_pivot, rotation=None,
               scale: float = 1.0, eyes=None, meta: Mapping | None = None, look_at: Mapping | None = None,
-              extras: dict | None = None) -> Path:
+              extras: dict | None = None, custom: Mapping[str, Mapping[str, float]] | None = None) -> Path:
     """Write ``mesh`` with its blendshapes as a VRM 1.0 avatar (see the module docstring).
 
     Parameters
@@ -254,6 +261,7 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
     look_at : range maps over :data:`DEFAULT_RANGE_MAP`, e.g.
         ``{"rangeMapHorizontalOuter": {"inputMaxValue": 30, "outputScale": 1}}``
     extras : JSON-safe metadata stored as the scene's ``extras``
+    custom : custom expression name -> {morph target name: weight in 0..1} (names not presets')
 
     Raises :class:`FaceAnimError` (one line) on an unknown preset or target name, a weight outside
     0..1, bad meta values, a scale that does not make a head-sized avatar, or an output path that
@@ -275,6 +283,7 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
             raise FaceAnimError(f"blendshape '{shown(name)}' must be a finite ({mesh.n_vertices}, 3) array")
     mesh_node = 0  # build_gltf's node 0 holds the mesh
     preset = _expressions(expressions, names, mesh_node)
+    customs = _expressions(custom or {}, names, mesh_node, custom=True)
     doc_meta = _meta(meta, mesh.name)
     ranges = _look_at(look_at)
 
@@ -319,8 +328,8 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
             offset = scale * rot @ (eye_point - pivot)
             look = {"offsetFromHeadBone": [float(x) for x in offset], **look}
         vrm["lookAt"] = look
-    if preset:
-        vrm["expressions"] = {"preset": preset}
+    if preset or customs:
+        vrm["expressions"] = {**({"preset": preset} if preset else {}), **({"custom": customs} if customs else {})}
     gltf.extensionsUsed = [*(gltf.extensionsUsed or []), VRM_EXTENSION]
     gltf.extensions = {**(gltf.extensions or {}), VRM_EXTENSION: vrm}
     return save_glb(gltf, path)
