@@ -19,6 +19,8 @@ tested on another.
    the face region, weights up to 1): the generated ARKit shapes (learned from ICT: another
    person) against the AU rig learned from this very person (in-sample).
 3. Time and size of `faceanim rig` on the default face and ICT.
+4. The eye angles a look curve stands for (``rig/arkit.LOOK_ANGLES``), regressed from the Live
+   Link Face take in ``arkit-curves/`` (its eye yaw/pitch against its look curves).
 """
 
 from __future__ import annotations
@@ -183,6 +185,34 @@ def main(argv=None) -> None:
             ict_face = Face(neutral, face.landmarks)  # the same points: only the order was shuffled
             sheet(args.sheet, [(ict_face, real, "ICT's own"), (ict_face, gen, "faceanim on ICT"),
                                (fface, fauto.shapes, "faceanim on FaceWarehouse (learned on ICT)")])
+
+    # 4. the eye angles of a look curve at 1 (rig/arkit.LOOK_ANGLES), from the real take ----------
+    take = args.data / "arkit-curves" / "alex_rom_3.csv"
+    if take.is_file():
+        from faceanim.io.arkit_csv import read_arkit_csv
+        from faceanim.rig.arkit import LOOK_ANGLES
+
+        import csv
+
+        with open(take, newline="") as fh:
+            rows = list(csv.reader(fh))
+        head, data = rows[0], np.array([[float(x) for x in r[2:]] for r in rows[1:]])
+        col = {n: k for k, n in enumerate(head[2:])}
+        read_arkit_csv(take)  # the take passes faceanim's own reader
+        print("\nEye angle (rad) per unit of look curve, regressed on the Live Link take "
+              "(angle ~ a * look_a + b * look_b + c):\n")
+        print("| eye | out | in | r (yaw) | up | down | r (pitch) | LOOK_ANGLES |\n|---|---:|---:|---:|---:|---:|---:|---|")
+        for eye in ("Left", "Right"):
+            sign = -1.0 if eye == "Left" else 1.0  # Live Link's yaw: the left eye looking out is negative
+            yaw, pitch = data[:, col[f"{eye}EyeYaw"]], data[:, col[f"{eye}EyePitch"]]
+            out, inn = data[:, col[f"EyeLookOut{eye}"]], data[:, col[f"EyeLookIn{eye}"]]
+            up, down = data[:, col[f"EyeLookUp{eye}"]], data[:, col[f"EyeLookDown{eye}"]]
+            a = np.linalg.lstsq(np.column_stack([out, inn, np.ones(len(out))]), sign * yaw, rcond=None)[0]
+            b = np.linalg.lstsq(np.column_stack([up, down, np.ones(len(up))]), -pitch, rcond=None)[0]
+            r_yaw = abs(np.corrcoef(out - inn, yaw)[0, 1])
+            r_pitch = abs(np.corrcoef(up - down, pitch)[0, 1])
+            print(f"| {eye} | {a[0]:.2f} | {-a[1]:.2f} | {r_yaw:.3f} | {b[0]:.2f} | {-b[1]:.2f} | {r_pitch:.3f} | "
+                  + ", ".join(f"{k} {v}" for k, v in LOOK_ANGLES.items()) + " |")
 
     # 3. time and size ----------------------------------------------------------------------
     print("\n| face | vertices | `faceanim rig` time | .glb | .glb --compact |\n|---|---:|---:|---:|---:|")
