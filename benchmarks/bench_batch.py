@@ -2,7 +2,7 @@
 machine, what binding each face once saves, the scheduler's overhead per task, and a paper
 projection to a dataset of 10,000 faces x 20 expressions.
 
-    .venv/bin/python benchmarks/bench_batch.py ../shared/data [--quick]   (about 13 min; --quick 4)
+    .venv/bin/python benchmarks/bench_batch.py ../shared/data [--quick]   (about 10 min here; --quick about 3)
 
 Jobs (real data, job files written to a temporary folder, outputs there too):
 
@@ -175,7 +175,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     p.add_argument("data", nargs="?", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data",
                    help="the shared data folder (default: ../shared/data)")
-    p.add_argument("--quick", action="store_true", help="fewer tasks (about 4 minutes)")
+    p.add_argument("--quick", action="store_true", help="fewer tasks: 12 transfers and 6 lip-syncs (about 3 minutes)")
     args = p.parse_args()
     args.data = args.data.resolve()
     if not (args.data / "facewarehouse-tester1").is_dir():
