@@ -92,9 +92,12 @@ def test_eye_looks_turn_the_eyeballs_rigidly_the_right_way(default_rig):
             radius = np.linalg.norm(rest[front] - centre)
             assert d[front] @ towards == pytest.approx(radius * np.sin(LOOK_ANGLES[look]), rel=0.02)
             assert np.all(np.isfinite(moved))
-            # the lids move with the look (ICT's lid motion carried), the other eye stays
+            # the other eye stays; the upper lid follows a look up or down (ICT's lid motion carried)
             other = eyes["R" if side == "L" else "L"][0]
             assert np.abs(d[other]).max() == 0.0
+            if look in ("Up", "Down"):
+                lid = np.argmin(np.linalg.norm(face.mesh.vertices - face.landmarks[386 if side == "L" else 159], axis=1))
+                assert d[lid] @ towards > 0.2 * np.linalg.norm(d[front])
 
 
 def test_visemes_open_and_close_the_lips(default_rig):

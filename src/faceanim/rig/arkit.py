@@ -1,4 +1,4 @@
-"""Apple ARKit's 52 blendshapes on any face, for playing Live Link Face recordings.
+"""Apple ARKit's blendshapes (51 of the 52) on any face, for playing Live Link Face recordings.
 
 The generic head (ICT FaceKit) carries artist-made shapes for 51 of ARKit's 52 blendshapes
 (``tongueOut`` has none). :func:`arkit_rig` moves them onto any face with the retargeting of
@@ -146,5 +146,5 @@ def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.nda
         shapes[name] = shapes[name] + d
     for slit, name in (("eye_L", "eyeBlinkLeft"), ("eye_R", "eyeBlinkRight")):
         shapes[name] = shapes[name] + _lid_closure(face, shapes[name], slit, eyes)
-    skipped = {n: "no learned pattern (ICT FaceKit has no such shape)" for n in missing}
+    skipped = {n: "no learned pattern: ICT FaceKit has no such shape" for n in missing}
     return shapes, skipped

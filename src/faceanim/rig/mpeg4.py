@@ -238,8 +238,10 @@ class FapRig(Rig):
                 side = next((k for k, turns in EYEBALL_TURNS.items() if n in turns), None)
                 if side is not None and eyes.get(side) is not None:
                     supported[n - 1] = True
-                else:
-                    unsupported[n] = "needs eyeballs (or a tongue) modelled as parts of the mesh"
+                elif side is not None:
+                    unsupported[n] = "needs the eyeball modelled as a part of the mesh"
+                else:  # thrusting an eyeball, dilating a pupil, rolling the tongue
+                    unsupported[n] = "not implemented by faceanim's FAP rig"
                 continue
             missing = [p for p in f.feature_points if p in fp.missing]
             if missing:

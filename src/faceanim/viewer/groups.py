@@ -19,12 +19,14 @@ from __future__ import annotations
 import re
 from functools import lru_cache
 
+from faceanim.autorig import EMOTIONS
+from faceanim.io.vrm import EMOTIONS as VRM_EMOTION_PRESETS
+from faceanim.io.vrm import VISEMES as VRM_VISEMES
+
 SET_ORDER = ("arkit", "visemes", "au", "emotions", "fap", "other")
 SET_LABELS = {"arkit": "ARKit", "visemes": "Visemes", "au": "Action units (FACS)", "emotions": "Emotions",
               "fap": "MPEG-4 FAPs", "other": "Other"}
-EMOTIONS = ("joy", "sadness", "surprise", "fear", "anger", "disgust")
-VRM_EMOTIONS = ("happy", "angry", "sad", "relaxed", "surprised", "neutral")
-VRM_VISEMES = ("aa", "ih", "ou", "ee", "oh")
+VRM_EMOTIONS = VRM_EMOTION_PRESETS + ("neutral",)
 _AU = re.compile(r"AU\d+(_L|_R)?")
 MAX_NAME = 200  # characters of a target name shown; longer names are cut
 
