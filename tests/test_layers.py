@@ -1,7 +1,8 @@
 """Imports go one way (docs/architecture.md): a module never imports a layer above its own.
 
     base (errors, limits, io.files)  <-  face.mesh  <-  io (mesh, glTF, audio, .fap files)
-        <-  deform, render  <-  face  <-  rig  <-  drivers  <-  player, demo  <-  cli
+        <-  deform, render  <-  face  <-  build  <-  rig | drivers  <-  player, perform, autorig
+        <-  demo, viewer, batch  <-  cli
 
 ``face`` sits above deform and render because a Face is completed by a landmark thin-plate spline
 and landmarks are detected on a render; ``drivers`` (curves over time) never import ``rig``.

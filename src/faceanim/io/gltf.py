@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 import pygltflib as g
 
-from faceanim.errors import FaceAnimError
+from faceanim.errors import FaceAnimError, shown
 from faceanim.face.mesh import Mesh, vertex_normals
 from faceanim.io.files import atomic_output
 
@@ -172,6 +172,16 @@ def save_glb(gltf: g.GLTF2, path: str | os.PathLike) -> Path:
     return path
 
 
+def checked_blendshapes(mesh: Mesh, blendshapes: Mapping[str, np.ndarray] | None) -> dict[str, np.ndarray]:
+    """``blendshapes`` as a dict, each checked to be a finite (V, 3) array for ``mesh``."""
+    out = dict(blendshapes or {})
+    for name, d in out.items():
+        d = np.asarray(d)
+        if d.shape != mesh.vertices.shape or not np.all(np.isfinite(d)):
+            raise FaceAnimError(f"blendshape '{shown(name)}' must be a finite ({mesh.n_vertices}, 3) array")
+    return out
+
+
 def build_gltf(mesh: Mesh, blendshapes: Mapping[str, np.ndarray] | None = None,
                times: np.ndarray | None = None, weights: np.ndarray | None = None,
                animation_name: str = "expressions", *, quantize: bool = False,
@@ -194,12 +204,8 @@ def build_gltf(mesh: Mesh, blendshapes: Mapping[str, np.ndarray] | None = None,
         (3,), animated on a parent node ``head`` at the pivot (the mesh keeps its coordinates: a
         child node takes the pivot off again)
     """
-    blendshapes = dict(blendshapes or {})
+    blendshapes = checked_blendshapes(mesh, blendshapes)
     names = list(blendshapes)
-    for name, d in blendshapes.items():
-        d = np.asarray(d)
-        if d.shape != mesh.vertices.shape or not np.all(np.isfinite(d)):
-            raise FaceAnimError(f"blendshape '{name}' must be a finite ({mesh.n_vertices}, 3) array")
     if (times is None) != (weights is None):
         raise FaceAnimError("give both times and weights for an animation, or neither")
     if extras is not None:

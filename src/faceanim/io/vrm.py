@@ -51,7 +51,7 @@ import numpy as np
 from faceanim.errors import FaceAnimError, shown
 from faceanim.face.mesh import Mesh
 from faceanim.io.files import check_output_path
-from faceanim.io.gltf import build_gltf, save_glb
+from faceanim.io.gltf import build_gltf, checked_blendshapes, save_glb
 
 VRM_EXTENSION = "VRMC_vrm"
 LICENSE_URL = "https://vrm.dev/licenses/1.0/"
@@ -275,12 +275,8 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
             or scale <= 0:
         raise FaceAnimError(f"scale (metres per mesh unit) must be a positive number, not '{shown(scale)}'")
     scale = float(scale)
-    blendshapes = dict(blendshapes or {})
+    blendshapes = checked_blendshapes(mesh, blendshapes)
     names = list(blendshapes)
-    for name, d in blendshapes.items():
-        d = np.asarray(d)
-        if d.shape != mesh.vertices.shape or not np.all(np.isfinite(d)):
-            raise FaceAnimError(f"blendshape '{shown(name)}' must be a finite ({mesh.n_vertices}, 3) array")
     mesh_node = 0  # build_gltf's node 0 holds the mesh
     preset = _expressions(expressions, names, mesh_node)
     customs = _expressions(custom or {}, names, mesh_node, custom=True)
