@@ -57,6 +57,11 @@ class Manifest:
             raise FaceAnimError(f"'{shown(self.path, 80, tail=True)}' is not a faceanim batch manifest (damaged or "
                                 "another file); move it away or choose another output folder") from None
 
+    @classmethod
+    def existing(cls, folder) -> Manifest | None:
+        """The folder's manifest if there is one (nothing is created)."""
+        return cls(folder) if (Path(folder) / NAME).is_file() else None
+
     def close(self) -> None:
         self.db.close()
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Callable, Hashable
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,11 +28,12 @@ CONNECT_TIMEOUT = "10s"
 @dataclass
 class PlannedTask:
     """A task ready to run: its output (relative to the output folder), the argv the task
-    function takes, the face it binds (None: nothing to bind) and its manifest signature."""
+    function takes, the faces it binds (keys for ``bind``; none: nothing to bind) and its
+    manifest signature."""
 
     output: str
     argv: list[str]
-    face: Hashable | None
+    faces: tuple
     signature: str
 
 
@@ -56,7 +57,7 @@ def _client(scheduler: str | None, workers: int | None):
             return Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
         except (OSError, TimeoutError, ValueError):
             raise FaceAnimError(f"cannot reach the Dask scheduler at '{shown(scheduler, 80)}' within "
-                                f"{CONNECT_TIMEOUT}; check the address and that dask-scheduler runs there") from None
+                                f"{CONNECT_TIMEOUT}; check the address and that 'dask scheduler' runs there") from None
     try:
         import bokeh  # noqa: F401  -- the dashboard needs it
         dashboard = ":0"
@@ -68,81 +69,116 @@ def _client(scheduler: str | None, workers: int | None):
     return Client(cluster, set_as_default=False)
 
 
+IN_FLIGHT_PER_WORKER = 4  # tasks handed to the scheduler at once, per worker (a dataset may have 10^5)
+
+
 def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, scheduler: str | None = None,
         workers: int | None = None, retries: int = 2, bind_faces: bool = True, progress: Callable | None = None,
         on_start: Callable | None = None) -> Summary:
-    """Run ``tasks`` not already done (by the manifest in ``out_dir``). ``bind(face)`` makes the
-    bound face; ``work(argv, out_dir, bound)`` runs one task and returns ``{"state": "done" |
+    """Run ``tasks`` not already done (by the manifest in ``out_dir``, which is made, with the
+    folder, only once the cluster is reached). ``bind(face)`` makes a bound face;
+    ``work(argv, out_dir, {face: bound})`` runs one task and returns ``{"state": "done" |
     "failed", "outputs": [...], "error": str, "seconds": float}``. ``bind_faces=False`` binds in
-    every task instead (to measure what binding once saves). ``progress(n)`` is called with the
-    number of tasks finished; ``on_start(summary)`` once the cluster is up."""
+    every task instead (to measure what binding once saves). Tasks are handed over a window at a
+    time, grouped by face; a bound face is let go once its last task is done. ``progress(n)`` is
+    called with the number of tasks finished; ``on_start(summary)`` once the cluster is up."""
     out_dir = Path(out_dir)
-    manifest = Manifest(out_dir)
     summary = Summary()
     start = time.perf_counter()
+    existing = Manifest.existing(out_dir)
     try:
         todo = []
         for t in tasks:
-            if manifest.is_done(t.output, t.signature, out_dir):
+            if existing is not None and existing.is_done(t.output, t.signature, out_dir):
                 summary.skipped.append(t.output)
             else:
                 todo.append(t)
-        if not todo:
-            return summary
-        client = _client(scheduler, workers)
-        try:
-            info = client.scheduler_info()
-            summary.workers = len(info.get("workers", {}))
-            summary.dashboard = client.dashboard_link if "dashboard" in info.get("services", {}) else None
-            if on_start is not None:
-                on_start(summary)
-            summary.seconds = 0.0
-            futures = {}
-            bound = {}
-            if bind_faces:
-                for face in dict.fromkeys(t.face for t in todo if t.face is not None):
-                    bound[face] = client.submit(_timed_bind, bind, face, retries=retries, pure=False)
-            for t in todo:
-                b = bound.get(t.face) if bind_faces else None
-                fut = client.submit(_run_one, work, bind, t.argv, str(out_dir), b, t.face, not bind_faces,
-                                    retries=retries, pure=False)
-                futures[fut] = t
-            from distributed import as_completed
-
-            finished = 0
-            with client.as_current():
-                for fut in as_completed(list(futures)):
-                    t = futures[fut]
-                    try:
-                        result = fut.result()
-                    except Exception as exc:  # noqa: BLE001 -- a task that kept crashing its workers, or a bug
-                        result = {"state": "failed", "outputs": [], "seconds": 0.0,
-                                  "error": f"the task failed {retries + 1} times ({type(exc).__name__}); rerun the "
-                                           "batch to retry it"}
-                    if result["state"] == "done":
-                        summary.done.append(t.output)
-                        summary.task_seconds.append(result["seconds"])
-                        manifest.record(t.output, t.signature, "done", result["outputs"], "", result["seconds"])
-                    else:
-                        summary.failed[t.output] = result["error"]
-                        manifest.record(t.output, t.signature, "failed", [], result["error"], result["seconds"])
-                    if result.get("bind_seconds") is not None:
-                        summary.bind_seconds.append(result["bind_seconds"])
-                    finished += 1
-                    if progress is not None:
-                        progress(finished)
-            for fut in bound.values():
-                try:
-                    summary.bind_seconds.append(fut.result()[1])
-                except Exception:  # noqa: BLE001 -- its tasks already say why
-                    pass
-        finally:
-            cluster = client.cluster
-            client.close()
-            if cluster is not None and not scheduler:
-                cluster.close()
     finally:
-        manifest.close()
+        if existing is not None:
+            existing.close()
+    if not todo:
+        summary.seconds = time.perf_counter() - start
+        return summary
+    # the tasks of one face together, faces in order of first use (a face is let go sooner)
+    first = {}
+    for k, t in enumerate(todo):
+        first.setdefault(t.faces, k)
+    todo.sort(key=lambda t: first[t.faces])
+    client = _client(scheduler, workers)
+    manifest = None
+    try:
+        out_dir.mkdir(exist_ok=True)
+        manifest = Manifest(out_dir)
+        info = client.scheduler_info()
+        summary.workers = len(info.get("workers", {}))
+        summary.dashboard = client.dashboard_link if "dashboard" in info.get("services", {}) else None
+        if on_start is not None:
+            on_start(summary)
+        from distributed import as_completed
+
+        window = max(2, IN_FLIGHT_PER_WORKER * max(1, summary.workers))
+        users = {}  # face -> tasks not yet finished that use it
+        for t in todo:
+            for f in t.faces:
+                users[f] = users.get(f, 0) + 1
+        bound: dict = {}  # face -> future of (bound face, seconds)
+        pending = iter(todo)
+        running = {}
+
+        def submit_next() -> bool:
+            t = next(pending, None)
+            if t is None:
+                return False
+            if bind_faces:
+                for f in t.faces:
+                    if f not in bound:
+                        bound[f] = client.submit(_timed_bind, bind, f, retries=retries, pure=False)
+                        summary.bind_seconds.append(client.submit(_seconds, bound[f], pure=False))
+                faces = {f: bound[f] for f in t.faces}
+            else:
+                faces = {}
+            fut = client.submit(_run_one, work, bind, t.argv, str(out_dir), faces, t.faces, retries=retries,
+                                pure=False)
+            running[fut] = t
+            return fut
+
+        with client.as_current():
+            flow = as_completed([f for f in (submit_next() for _ in range(window)) if f])
+            finished = 0
+            for fut in flow:
+                t = running.pop(fut)
+                try:
+                    result = fut.result()
+                except Exception as exc:  # noqa: BLE001 -- a task that kept crashing its workers, or a bug
+                    result = {"state": "failed", "outputs": [], "seconds": 0.0,
+                              "error": f"the task failed {retries + 1} times ({type(exc).__name__}); rerun the "
+                                       "batch to retry it"}
+                if result["state"] == "done":
+                    summary.done.append(t.output)
+                    summary.task_seconds.append(result["seconds"])
+                    manifest.record(t.output, t.signature, "done", result["outputs"], "", result["seconds"])
+                else:
+                    summary.failed[t.output] = result["error"]
+                    manifest.record(t.output, t.signature, "failed", [], result["error"], result["seconds"])
+                summary.bind_seconds.extend(result.get("bind_seconds") or [])
+                for f in t.faces:  # a face no task needs any more leaves the workers' memory
+                    users[f] -= 1
+                    if users[f] == 0:
+                        bound.pop(f, None)
+                finished += 1
+                if progress is not None:
+                    progress(finished)
+                nxt = submit_next()
+                if nxt:
+                    flow.add(nxt)
+            summary.bind_seconds = [b.result() if hasattr(b, "result") else b for b in summary.bind_seconds]
+    finally:
+        cluster = client.cluster
+        client.close()
+        if cluster is not None and not scheduler:
+            cluster.close()
+        if manifest is not None:
+            manifest.close()
         summary.seconds = time.perf_counter() - start
     return summary
 
@@ -155,15 +191,22 @@ def _timed_bind(bind: Callable, face):
         return exc, time.perf_counter() - start
 
 
-def _run_one(work: Callable, bind: Callable, argv, out_dir: str, bound, face, bind_here: bool) -> dict:
-    bind_seconds = None
-    if bind_here and face is not None:
-        bound = _timed_bind(bind, face)
-        bind_seconds = bound[1]
-    if bound is not None:
-        bound = bound[0]
-        if isinstance(bound, FaceAnimError):
-            return {"state": "failed", "outputs": [], "error": str(bound), "seconds": 0.0, "bind_seconds": bind_seconds}
+def _seconds(timed) -> float:
+    return float(timed[1])
+
+
+def _run_one(work: Callable, bind: Callable, argv, out_dir: str, faces: dict, keys: tuple) -> dict:
+    bind_seconds = []
+    if not faces and keys:  # --no-bind: this task binds its own faces
+        faces = {}
+        for key in keys:
+            faces[key] = _timed_bind(bind, key)
+            bind_seconds.append(faces[key][1])
+    bound = {}
+    for key, (face, _) in faces.items():
+        if isinstance(face, FaceAnimError):
+            return {"state": "failed", "outputs": [], "error": str(face), "seconds": 0.0, "bind_seconds": bind_seconds}
+        bound[key] = face
     result = work(argv, out_dir, bound)
     result["bind_seconds"] = bind_seconds
     return result

@@ -19,6 +19,9 @@ OPERATIONS = {"rig": ("rig",), "au": ("au",), "transfer": ("transfer",), "wires 
               "wires apply": ("wires", "apply"), "say": ("say",), "fap play": ("fap", "play"),
               "perform": ("perform",), "photo": ("photo",), "render": ("render",)}
 FACE_OPERATIONS = {"rig", "au", "transfer", "wires extract", "wires apply", "say", "fap play", "perform"}
+# other faces an operation reads, bound like its face: (mesh argument, its landmarks argument)
+OTHER_FACES = {"transfer": (("source_neutral", "source_neutral_landmarks"),
+                            ("source_expressive", "source_expressive_landmarks"))}
 MAX_WORKERS = 256
 MAX_RETRIES = 10
 
@@ -88,7 +91,7 @@ def plan(job, out_dir: Path):
     from faceanim.batch.jobs import expand
     from faceanim.batch.manifest import file_hash, signature
     from faceanim.batch.runner import PlannedTask
-    from faceanim.cli.common import face_key
+    from faceanim.cli.common import face_key, key_of
 
     words = OPERATIONS.get(job.operation)
     if words is None:
@@ -128,14 +131,16 @@ def plan(job, out_dir: Path):
             message = message.split(": error: ", 1)[-1]
             raise CommandError(f"{job.source}: {job.operation} would refuse a task's arguments: "
                                f"{shown(message, 300)}") from None
-        face = face_key(args) if job.operation in FACE_OPERATIONS else None
+        faces = [face_key(args)] if job.operation in FACE_OPERATIONS else []
+        faces += [key_of(getattr(args, mesh), getattr(args, lms)) for mesh, lms in OTHER_FACES.get(job.operation, ())]
         try:
             inputs = {name: file_hash(path, hashes) for name, path in t.inputs}
         except OSError:
             raise CommandError(f"an input of task '{shown(t.output, 80)}' cannot be read; check its permissions") \
                 from None
         recorded = argv[:-1] + [t.output]  # the signature does not depend on where OUTDIR is
-        planned.append(PlannedTask(t.output, argv, face, signature(job.operation, recorded, inputs)))
+        planned.append(PlannedTask(t.output, argv, tuple(dict.fromkeys(faces)),
+                                   signature(job.operation, recorded, inputs)))
     return planned
 
 
@@ -151,15 +156,16 @@ def bind(face):
     return f
 
 
-def work(argv, out_dir, bound) -> dict:
+def work(argv, out_dir, bound: dict) -> dict:
     """Run one task (a command line the job's check already parsed) in this process: the
-    command's own function, its face the bound one, its printing kept from the terminal."""
+    command's own function, its faces the bound ones (``bound``: face key -> Face), its printing
+    kept from the terminal."""
     from faceanim.cli import common
 
     args = _parser().parse_args(argv)
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
-    common.BOUND_FACES = {common.face_key(args): bound} if bound is not None else None
+    common.BOUND_FACES = dict(bound) if bound else None
     common.REPORTED = []
     start = time.perf_counter()
     try:
@@ -193,8 +199,8 @@ def _cmd_batch(args) -> None:
         raise CommandError(f"the output folder's parent '{shown(out_dir.parent, 80, tail=True)}' does not exist; "
                            "create it first")
     tasks = plan(job, out_dir.resolve())
-    out_dir.mkdir(exist_ok=True)
-    check_output_path(out_dir / "faceanim-batch.sqlite")
+    # writable, checked before any work; the folder and its manifest are made once the cluster is up
+    check_output_path(out_dir / "faceanim-batch.sqlite" if out_dir.is_dir() else out_dir)
     from tqdm import tqdm
 
     bar = tqdm(total=len(tasks), desc="tasks", unit="task", disable=args.quiet or not sys.stderr.isatty(),

@@ -104,12 +104,28 @@ BOUND_FACES: dict | None = None
 REPORTED: list | None = None
 
 
-def face_key(args, required: bool = False) -> tuple:
+def key_of(path, landmarks=None, forward: str = "+z", up: str = "+y") -> tuple:
     """What a face is loaded from: (mesh path or None for the default, landmarks, forward, up)."""
-    path = face_path(args, required)
     path = None if path in (None, "default") else str(Path(path).resolve())
-    lms = getattr(args, "landmarks", None)
-    return (path, str(Path(lms).resolve()) if lms else None, getattr(args, "forward", "+z"), getattr(args, "up", "+y"))
+    return (path, str(Path(landmarks).resolve()) if landmarks else None, forward, up)
+
+
+def face_key(args, required: bool = False) -> tuple:
+    """:func:`key_of` the command's face (``--face``/MESH, ``--landmarks``, ``--forward``, ``--up``)."""
+    return key_of(face_path(args, required), getattr(args, "landmarks", None), getattr(args, "forward", "+z"),
+                  getattr(args, "up", "+y"))
+
+
+def face_at(path, landmarks=None, forward: str = "+z", up: str = "+y"):
+    """``Face.load`` of another face a command reads (e.g. a transfer's source scans), or the one
+    already bound for it."""
+    from faceanim.face.face import Face
+
+    if BOUND_FACES is not None:
+        bound = BOUND_FACES.get(key_of(path, landmarks, forward, up))
+        if bound is not None:
+            return bound
+    return Face.load(path, landmarks, forward, up)
 
 
 def load_face(args, required: bool = False):

@@ -13,6 +13,7 @@ from faceanim.cli.common import (
     add_face,
     add_output,
     check_outputs,
+    face_at,
     load_face,
     report,
     write_pose,
@@ -45,7 +46,6 @@ def _cmd_au(args) -> None:
 
 
 def _cmd_transfer(args) -> None:
-    from faceanim.face.face import Face
     from faceanim.rig.facs import default_library
     from faceanim.rig.transfer import ExpressionTransfer, learn_expression
 
@@ -53,8 +53,8 @@ def _cmd_transfer(args) -> None:
     m = lib.intensity(args.magnitude)
     aus = lib.parse_action_units(args.au)
     check_outputs(args.output)
-    s0 = Face.load(args.source_neutral, args.source_neutral_landmarks)
-    s1 = Face.load(args.source_expressive, args.source_expressive_landmarks)
+    s0 = face_at(args.source_neutral, args.source_neutral_landmarks)
+    s1 = face_at(args.source_expressive, args.source_expressive_landmarks)
     sample = learn_expression(s0.mesh, s1.mesh, s0.landmarks, s1.landmarks, lib)
     face = load_face(args)
     xf = ExpressionTransfer(face, lib, method=args.method)
