@@ -302,9 +302,15 @@ def test_missing_three_js_says_how_to_install(tmp_path, model, capsys, monkeypat
     assert "npm install --prefix" in lines[0] and str(srv.STATIC) in lines[0]
 
 
+def _interruptible():
+    # Ctrl-C (SIGINT) at its default in the viewer, however the tests were started: a shell's
+    # background job starts with SIGINT ignored, and Python then never raises KeyboardInterrupt
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(args, **kw):
     p = subprocess.Popen([*FACEANIM, "view", *map(str, args), "--no-browser"], stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True, **kw)
+                         stderr=subprocess.PIPE, text=True, preexec_fn=_interruptible, **kw)
     line = p.stdout.readline()
     m = re.search(r"http://127\.0\.0\.1:(\d+)/", line)
     if not m:

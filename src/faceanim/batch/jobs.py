@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import glob
 import json
+import os
+import re
 import string
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +31,11 @@ MAX_JOB_BYTES = 1 << 20  # a job file is a few lines; a megabyte is not one
 MAX_TASKS = 1_000_000  # combinations of the inputs
 MAX_MATCHES = 200_000  # files one glob may match
 KEYS = ("operation", "inputs", "options", "output")
+
+
+_UniqueKeyLoader = None  # made on first use (yaml is imported late)
+MAX_SCANNED = 500_000  # folders and files a recursive glob may look at
+MAX_NAME_BYTES, MAX_PATH_BYTES = 255, 4096  # what file systems take
 
 
 class JobError(FaceAnimError):
@@ -65,6 +72,38 @@ class Task:
         return dict(self.inputs)
 
 
+class _Twice(Exception):
+    def __init__(self, key, line=None):
+        self.key, self.line = str(key), line
+
+
+def _unique_pairs(pairs):
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise _Twice(k)
+        out[k] = v
+    return out
+
+
+def _unique_key_loader():
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        """The safe YAML loader, refusing a mapping that names a key twice (it keeps the last)."""
+
+        def construct_mapping(self, node, deep=False):
+            seen = set()
+            for key_node, _ in node.value:
+                if isinstance(key_node, yaml.ScalarNode):
+                    if key_node.value in seen:
+                        raise _Twice(key_node.value, key_node.start_mark.line + 1)
+                    seen.add(key_node.value)
+            return super().construct_mapping(node, deep)
+
+    return Loader
+
+
 def _lines(text: str) -> dict[str, int]:
     """Line numbers (1-based) of the top-level keys and of the keys under inputs/options."""
     import yaml
@@ -89,6 +128,9 @@ def read_job(path) -> Job:
     """A job file, checked for shape (not yet against the operation: see the command layer)."""
     import yaml
 
+    global _UniqueKeyLoader
+    if _UniqueKeyLoader is None:
+        _UniqueKeyLoader = _unique_key_loader()
     path = Path(path)
     name = shown(path.name, 60, tail=True)
     try:
@@ -107,7 +149,11 @@ def read_job(path) -> Job:
     except UnicodeDecodeError:
         raise JobError(f"job file '{name}' is not UTF-8 text; write it as YAML or JSON") from None
     try:
-        doc = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+        doc = json.loads(text, object_pairs_hook=_unique_pairs) if path.suffix.lower() == ".json" \
+            else yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 -- a SafeLoader subclass
+    except _Twice as exc:
+        raise JobError(f"key '{shown(exc.key)}' is given twice{f' (line {exc.line})' if exc.line else ''} in "
+                       f"job file '{name}'; give it once") from None
     except (yaml.YAMLError, ValueError) as exc:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else getattr(exc, "lineno", None)
@@ -172,11 +218,18 @@ def read_job(path) -> Job:
 
 
 def _fields(pattern: str, what: str) -> list[str]:
+    if any(not c.isprintable() for c in pattern):
+        raise JobError(f"{what} holds a control character (such as NUL or a newline); file names cannot")
     try:
-        return [f for _, f, _, _ in string.Formatter().parse(pattern) if f is not None]
+        parsed = list(string.Formatter().parse(pattern))
     except ValueError:
         raise JobError(f"{what} '{shown(pattern, 80)}' has an unmatched brace; write {{name}} for an input's stem") \
             from None
+    for _, f, spec, conversion in parsed:
+        if f is not None and (spec or conversion or not f.isidentifier()):
+            raise JobError(f"{what}: '{{{shown(f + ('!' + conversion if conversion else '') + (':' + spec if spec else ''), 40)}}}'"
+                           " is not an input's name; write plain {name} (no format spec)")
+    return [f for _, f, _, _ in parsed if f is not None]
 
 
 def _expand_one(job: Job, name: str, value: str, known: dict[str, str]) -> list[str]:
@@ -189,14 +242,9 @@ def _expand_one(job: Job, name: str, value: str, known: dict[str, str]) -> list[
             raise JobError(f"input '{name}' ({where}) names '{{{shown(bad[0])}}}', which is not an earlier input; "
                            f"use one of: {', '.join(known) or '(none before it)'}")
         value = value.format(**known)
-    path = Path(value) if Path(value).is_absolute() else job.base / value
+    path = Path(os.path.normpath(value if Path(value).is_absolute() else job.base / value))
     if glob.has_magic(value):
-        matches = []
-        for m in glob.iglob(str(path), recursive=True):
-            matches.append(m)
-            if len(matches) > MAX_MATCHES:
-                raise JobError(f"input '{name}' ({where}) matches more than {MAX_MATCHES} files; narrow the glob")
-        files = sorted(m for m in matches if Path(m).is_file())
+        files = sorted(_glob(str(path), name, where))
         if not files:
             raise JobError(f"input '{name}' ({where}): '{shown(value, 80)}' matches no file")
         return files
@@ -204,6 +252,68 @@ def _expand_one(job: Job, name: str, value: str, known: dict[str, str]) -> list[
         raise JobError(f"input '{name}' ({where}): '{shown(value, 80)}' is not a file"
                        + ("" if not fields else " (from its pattern)"))
     return [str(path)]
+
+
+def _glob_regex(pattern: str) -> re.Pattern:
+    """A glob as a regular expression over whole paths: ``*`` and ``?`` stay within a folder,
+    ``**/`` spans folders, ``[...]`` is a set."""
+    out, k = [], 0
+    while k < len(pattern):
+        c = pattern[k]
+        if pattern.startswith("**/", k):
+            out.append("(?:.*/)?")
+            k += 3
+        elif pattern.startswith("**", k):
+            out.append(".*")
+            k += 2
+        elif c == "*":
+            out.append("[^/]*")
+            k += 1
+        elif c == "?":
+            out.append("[^/]")
+            k += 1
+        elif c == "[" and "]" in pattern[k + 2:]:
+            end = pattern.index("]", k + 2)
+            body = pattern[k + 1:end]
+            body = "^" + body[1:] if body.startswith("!") else body
+            out.append("[" + body.replace("\\", "\\\\") + "]")
+            k = end + 1
+        else:
+            out.append(re.escape(c))
+            k += 1
+    return re.compile("".join(out) + r"\Z")
+
+
+def _glob(pattern: str, name: str, where: str) -> list[str]:
+    """The files a glob matches, walking from its fixed part down without following links to
+    folders (a link loop, or /proc, would never end) and looking at :data:`MAX_SCANNED` entries at
+    most."""
+    parts = pattern.split("/")
+    fixed = []
+    for part in parts[:-1]:
+        if glob.has_magic(part):
+            break
+        fixed.append(part)
+    root = "/".join(fixed) or ("/" if pattern.startswith("/") else ".")
+    regex = _glob_regex(pattern)
+    depth = None if "**" in pattern else len(parts) - len(fixed) - 1
+    found, scanned = [], 0
+    for folder, dirs, names in os.walk(root, followlinks=False):
+        level = 0 if folder == root else folder[len(root):].strip("/").count("/") + 1
+        scanned += len(dirs) + len(names)
+        if scanned > MAX_SCANNED:
+            raise JobError(f"input '{name}' ({where}): the glob searches more than {MAX_SCANNED} files and folders; "
+                           "narrow it")
+        if depth is not None and level >= depth:
+            dirs[:] = []
+        dirs.sort()
+        for n in names:
+            full = os.path.join(folder, n)
+            if regex.match(full) and os.path.isfile(full):
+                found.append(full)
+                if len(found) > MAX_MATCHES:
+                    raise JobError(f"input '{name}' ({where}) matches more than {MAX_MATCHES} files; narrow the glob")
+    return found
 
 
 def expand(job: Job) -> list[Task]:
@@ -241,6 +351,9 @@ def expand(job: Job) -> list[Task]:
         if p.is_absolute() or ".." in p.parts or not p.name:
             raise JobError(f"output ({job.where('output')}) must stay inside the output folder: "
                            f"'{shown(t.output, 80)}'")
+        if any(len(part.encode()) > MAX_NAME_BYTES for part in p.parts) or len(t.output.encode()) > MAX_PATH_BYTES:
+            raise JobError(f"output ({job.where('output')}) makes a file name longer than {MAX_NAME_BYTES} bytes "
+                           f"('{shown(t.output, 60)}'); shorten the pattern")
         seen[t.output] = seen.get(t.output, 0) + 1
     twice = [o for o, n in seen.items() if n > 1]
     if twice:

@@ -55,7 +55,7 @@ def _client(scheduler: str | None, workers: int | None):
     if scheduler:
         try:
             return Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
-        except (OSError, TimeoutError, ValueError):
+        except (OSError, TimeoutError, ValueError, TypeError):
             raise FaceAnimError(f"cannot reach the Dask scheduler at '{shown(scheduler, 80)}' within "
                                 f"{CONNECT_TIMEOUT}; check the address and that 'dask scheduler' runs there") from None
     try:
@@ -105,9 +105,10 @@ def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, sc
         first.setdefault(t.faces, k)
     todo.sort(key=lambda t: first[t.faces])
     client = _client(scheduler, workers)
-    manifest = None
+    manifest = lock = None
     try:
         out_dir.mkdir(exist_ok=True)
+        lock = _lock(out_dir)
         manifest = Manifest(out_dir)
         info = client.scheduler_info()
         summary.workers = len(info.get("workers", {}))
@@ -179,8 +180,27 @@ def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, sc
             cluster.close()
         if manifest is not None:
             manifest.close()
+        if lock is not None:
+            lock.close()
         summary.seconds = time.perf_counter() - start
     return summary
+
+
+def _lock(out_dir: Path):
+    """An exclusive lock (flock, beside SQLite's own byte-range locks) on the output folder's
+    manifest for this batch: two batches on one folder would both redo everything."""
+    import fcntl
+
+    from faceanim.batch.manifest import NAME
+
+    fh = open(out_dir / NAME, "a")  # noqa: SIM115 -- held until the batch ends
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.close()
+        raise FaceAnimError(f"another faceanim batch is writing to '{shown(out_dir, 80, tail=True)}'; wait for it "
+                            "or choose another output folder") from None
+    return fh
 
 
 def _timed_bind(bind: Callable, face):

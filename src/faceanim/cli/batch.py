@@ -85,6 +85,25 @@ def _argv_part(name: str, value, spec, where: str) -> list[str]:
     return [flag, *[str(v) for v in values]]
 
 
+NOT_FILES = {"say": ("text",)}  # positional arguments that are words, not files: options, not inputs
+
+
+def _where_refused(job, known: dict, message: str) -> str:
+    """The job file's key (and line) an argparse refusal is about: the option or input whose flag
+    it names, or the output."""
+    import re
+
+    named = re.match(r"argument ([^:]+):", message)
+    flags = [f.strip() for f in named.group(1).split("/")] if named else []
+    if "--output" in flags or "-o" in flags:
+        return f"output ({job.where('output')})"
+    for name, (_, flag, _) in known.items():
+        if flag in flags or name in flags:
+            group = "inputs" if name in job.inputs else "options"
+            return f"{group[:-1]} '{name}' ({job.where(f'{group}.{name}')})"
+    return job.source
+
+
 def plan(job, out_dir: Path):
     """The job's tasks as :class:`~faceanim.batch.runner.PlannedTask` (checked: operation,
     input and option names, and each task's command line as the command itself parses it)."""
@@ -103,6 +122,10 @@ def plan(job, out_dir: Path):
             if name not in known:
                 raise CommandError(f"unknown {group[:-1]} '{shown(name)}' for {job.operation} "
                                    f"({job.where(f'{group}.{name}')}); it takes: {', '.join(sorted(known))}")
+    for name in NOT_FILES.get(job.operation, ()):
+        if name in job.inputs:
+            raise CommandError(f"input '{name}' ({job.where(f'inputs.{name}')}) is words, not a file: give it "
+                               "under options")
     for name, spec in known.items():
         action = spec[2]
         if getattr(action, "required", False) and name not in job.inputs and name not in job.options:
@@ -129,7 +152,7 @@ def plan(job, out_dir: Path):
         except SystemExit:
             message = err.getvalue().strip().splitlines()[-1] if err.getvalue().strip() else "bad arguments"
             message = message.split(": error: ", 1)[-1]
-            raise CommandError(f"{job.source}: {job.operation} would refuse a task's arguments: "
+            raise CommandError(f"{_where_refused(job, known, message)}: {job.operation} would refuse it: "
                                f"{shown(message, 300)}") from None
         faces = [face_key(args)] if job.operation in FACE_OPERATIONS else []
         faces += [key_of(getattr(args, mesh), getattr(args, lms)) for mesh, lms in OTHER_FACES.get(job.operation, ())]
@@ -179,6 +202,9 @@ def work(argv, out_dir, bound: dict) -> dict:
     except FaceAnimError as exc:
         message = "".join(c if c.isprintable() else "?" for c in str(exc))
         return {"state": "failed", "outputs": [], "error": message, "seconds": time.perf_counter() - start}
+    except Exception as exc:  # noqa: BLE001 -- a bug: one line for the summary, not a retried traceback
+        return {"state": "failed", "outputs": [], "seconds": time.perf_counter() - start,
+                "error": f"internal error ({type(exc).__name__}); please report it with the job file"}
     finally:
         common.BOUND_FACES = None
         common.REPORTED = None
@@ -191,6 +217,11 @@ def _cmd_batch(args) -> None:
 
     if args.workers is not None and args.scheduler:
         raise CommandError("--workers starts a local cluster; with --scheduler the cluster has its own workers")
+    if args.scheduler is not None:
+        import re
+
+        if not re.fullmatch(r"(tcp|tls|ws|wss)://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):\d{1,5}", args.scheduler):
+            raise CommandError(f"'{shown(args.scheduler, 80)}' is not a scheduler address such as tcp://host:8786")
     job = read_job(args.job)
     out_dir = Path(args.output)
     if out_dir.exists() and not out_dir.is_dir():
