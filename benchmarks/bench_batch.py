@@ -164,7 +164,7 @@ def trivial_work(argv, out_dir, bound) -> dict:
 
 
 def trivial_tasks(n: int) -> list[PlannedTask]:
-    return [PlannedTask(f"t{k:06d}", [str(k)], k % 3, f"sig{k}") for k in range(n)]
+    return [PlannedTask(f"t{k:06d}", [str(k)], (k % 3,), f"sig{k}") for k in range(n)]
 
 
 def per_min(n: int, seconds: float) -> float:
@@ -194,7 +194,7 @@ def main() -> None:
         for label, path in job_files(args.data, tmp, args.quick).items():
             job = read_job(path)
             tasks = cli_batch.plan(job, (tmp / "plan").resolve())
-            faces = len({t.face for t in tasks})
+            faces = len({f for t in tasks for f in t.faces})
             key = label.split()[0]
             plain_tasks = cli_batch.plan(job, (tmp / f"{key}-plain").resolve())
             r = {"plain": measured(run_plain, plain_tasks)}
