@@ -299,7 +299,7 @@ def main() -> None:
                f"{plan_per_task * 1e3:.1f} ms per task (job A)"),
               ("hours = plan + max(workers' hours, floor); each worker a single-threaded process on its own core; "
                "not modelled: shared-storage bandwidth (job A reads ~1.5 MB of meshes, writes ~0.2 MB per task), "
-               "the scheduler's memory and latency with 200,000 futures submitted at once, worker start-up, failures")])
+               "worker start-up, failures (tasks are handed over a window at a time: 4 per worker in flight)")])
     print(watch.line())
 
 
