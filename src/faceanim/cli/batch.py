@@ -182,7 +182,7 @@ def bind(face):
 def work(argv, out_dir, bound: dict) -> dict:
     """Run one task (a command line the job's check already parsed) in this process: the
     command's own function, its faces the bound ones (``bound``: face key -> Face), its printing
-    kept from the terminal."""
+    (stdout and stderr) kept from the terminal."""
     from faceanim.cli import common
 
     args = _parser().parse_args(argv)
@@ -192,7 +192,9 @@ def work(argv, out_dir, bound: dict) -> dict:
     common.REPORTED = []
     start = time.perf_counter()
     try:
-        with contextlib.redirect_stdout(io.StringIO()):
+        # the command's report and notes (e.g. rig's shapes not made) stay out of the terminal:
+        # a thousand tasks would print a thousand of them
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             args.func(args)
         written = common.REPORTED or [str(out)]
         root = Path(out_dir).resolve()
