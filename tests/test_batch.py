@@ -709,3 +709,24 @@ def test_a_malformed_scheduler_address_is_one_line_exit_2_nothing_written(unreac
     assert rc == 2, (stdout, stderr)
     assert len(stderr.strip().splitlines()) == 1, stderr
     assert not out.exists()
+
+
+def test_a_file_given_as_an_option_counts_by_its_content(tmp_path):
+    """A landmarks JSON under options is read relative to the job file like the inputs, and a
+    change to its content redoes the task (it was in the signature by path only)."""
+    from faceanim.face.default import default_face, default_landmarks
+    from faceanim.io.meshio import save_mesh
+
+    save_mesh(default_face(), tmp_path / "face.obj")
+    default_landmarks().save(tmp_path / "lm.json")
+    job = write(tmp_path, "job.yaml", "operation: au\ninputs:\n  face: face.obj\n"
+                                      "options: {au: '12', landmarks: lm.json}\noutput: '{face}.obj'\n")
+    out = tmp_path / "out"
+    first = batch(job, out, "--workers", 1, "--quiet")
+    assert first.returncode == 0 and "1 done" in first.stdout, (first.stdout, first.stderr)
+    again = batch(job, out, "--workers", 1, "--quiet")
+    assert "0 done, 1 skipped" in again.stdout, again.stdout
+    with open(tmp_path / "lm.json", "a") as fh:
+        fh.write("\n")  # same landmarks, other bytes: the content changed
+    redone = batch(job, out, "--workers", 1, "--quiet")
+    assert "1 done, 0 skipped" in redone.stdout, redone.stdout

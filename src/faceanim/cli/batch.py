@@ -133,7 +133,14 @@ def plan(job, out_dir: Path):
     tasks = expand(job)
     hashes: dict = {}
     option_argv: list[str] = []
+    option_files: dict[str, str] = {}  # options naming files (a landmarks JSON, photo points): by content too
     for name, value in job.options.items():
+        values = value if isinstance(value, list) else [value]
+        if all(isinstance(v, str) and (job.base / v).is_file() for v in values) and values:
+            # a file given as an option is relative to the job file, like the inputs
+            resolved = [str((job.base / v).resolve()) for v in values]
+            value = resolved if isinstance(value, list) else resolved[0]
+            option_files.update({f"{name}[{k}]": p for k, p in enumerate(resolved)})
         option_argv += _argv_part(name, value, known[name], job.where(f"options.{name}"))
     parser = _parser()
     planned = []
@@ -157,7 +164,7 @@ def plan(job, out_dir: Path):
         faces = [face_key(args)] if job.operation in FACE_OPERATIONS else []
         faces += [key_of(getattr(args, mesh), getattr(args, lms)) for mesh, lms in OTHER_FACES.get(job.operation, ())]
         try:
-            inputs = {name: file_hash(path, hashes) for name, path in t.inputs}
+            inputs = {name: file_hash(path, hashes) for name, path in [*t.inputs, *option_files.items()]}
         except OSError:
             raise CommandError(f"an input of task '{shown(t.output, 80)}' cannot be read; check its permissions") \
                 from None
