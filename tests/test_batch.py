@@ -730,3 +730,42 @@ def test_a_file_given_as_an_option_counts_by_its_content(tmp_path):
         fh.write("\n")  # same landmarks, other bytes: the content changed
     redone = batch(job, out, "--workers", 1, "--quiet")
     assert "1 done, 0 skipped" in redone.stdout, redone.stdout
+
+
+def test_a_batch_never_writes_over_its_own_inputs(tmp_path, capsys):
+    """-o the inputs' own folder with output '{face}.obj': the scans were overwritten (the review
+    found it); now refused before anything runs."""
+    save_shape(tmp_path / "a.obj", "sphere")
+    job = write(tmp_path, "job.yaml", "operation: au\ninputs:\n  face: '*.obj'\noptions: {au: '12'}\n"
+                                      "output: '{face}.obj'\n")
+    before = tree(tmp_path)
+    rc, _, err = run_main(["batch", job, "-o", tmp_path], capsys)
+    assert rc == 2 and "would overwrite an input" in err and "line 5" in err, err
+    assert tree(tmp_path) == before
+
+
+def test_hidden_files_are_not_matched_by_a_plain_glob(tmp_path):
+    touch(tmp_path, "a.obj", ".hidden.obj")
+    (tmp_path / ".cache").mkdir()
+    touch(tmp_path / ".cache", "b.obj")
+    job = read_job(write(tmp_path, "j.yaml", "operation: render\ninputs:\n  face: '**/*.obj'\noutput: '{face}.png'\n"))
+    assert [Path(t.input_paths["face"]).name for t in expand(job)] == ["a.obj"]
+    job = read_job(write(tmp_path, "k.yaml", "operation: render\ninputs:\n  face: '.*.obj'\noutput: '{face}.png'\n"))
+    assert [Path(t.input_paths["face"]).name for t in expand(job)] == [".hidden.obj"]
+
+
+def test_options_are_files_only_where_the_command_takes_a_file(tmp_path, capsys):
+    """A word option that happens to name a file beside the job ('12') stays a word; a file option
+    that names nothing is refused with its line."""
+    from faceanim.cli.batch import plan
+
+    save_shape(tmp_path / "a.obj", "sphere")
+    touch(tmp_path, "12")
+    job = read_job(write(tmp_path, "j.yaml", "operation: au\ninputs:\n  face: a.obj\noptions: {au: '12'}\n"
+                                             "output: '{face}.obj'\n"))
+    (task,) = plan(job, tmp_path / "out")
+    assert task.argv[task.argv.index("--au") + 1] == "12"
+    job = write(tmp_path, "k.yaml", "operation: au\ninputs:\n  face: a.obj\noptions: {au: '12', landmarks: nope.json}\n"
+                                    "output: '{face}.obj'\n")
+    rc, _, err = run_main(["batch", job, "-o", tmp_path / "out"], capsys)
+    assert rc == 2 and "option 'landmarks'" in err and "line 4" in err and "is not a file" in err, err

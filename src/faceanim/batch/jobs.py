@@ -298,7 +298,11 @@ def _glob(pattern: str, name: str, where: str) -> list[str]:
     regex = _glob_regex(pattern)
     depth = None if "**" in pattern else len(parts) - len(fixed) - 1
     found, scanned = [], 0
+    hidden_ok = "/." in "/" + pattern  # like glob: names starting with a dot only when the pattern says so
     for folder, dirs, names in os.walk(root, followlinks=False):
+        if not hidden_ok:
+            dirs[:] = [d for d in dirs if not d.startswith(".")]
+            names = [n for n in names if not n.startswith(".")]
         level = 0 if folder == root else folder[len(root):].strip("/").count("/") + 1
         scanned += len(dirs) + len(names)
         if scanned > MAX_SCANNED:

@@ -80,5 +80,3 @@ class Manifest:
                         (output, sig, json.dumps(list(outputs)), state, error, float(seconds), time.time()))
         self.db.commit()
 
-    def rows(self) -> list[tuple]:
-        return self.db.execute("SELECT output, state, error FROM tasks ORDER BY output").fetchall()

@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from faceanim.batch.manifest import NAME as MANIFEST_NAME
 from faceanim.batch.manifest import Manifest
 from faceanim.errors import FaceAnimError, shown
 
@@ -69,7 +70,8 @@ def _client(scheduler: str | None, workers: int | None):
     return Client(cluster, set_as_default=False)
 
 
-IN_FLIGHT_PER_WORKER = 4  # tasks handed to the scheduler at once, per worker (a dataset may have 10^5)
+IN_FLIGHT_PER_WORKER = 4  # tasks handed to the scheduler at once, per worker (a dataset may have 10^5)...
+IN_FLIGHT_MIN = 64  # ...and at least this many (a cluster that grows with the work starts with few)
 
 
 def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, scheduler: str | None = None,
@@ -104,20 +106,34 @@ def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, sc
     for k, t in enumerate(todo):
         first.setdefault(t.faces, k)
     todo.sort(key=lambda t: first[t.faces])
-    client = _client(scheduler, workers)
-    manifest = lock = None
+    # before the cluster, a second batch on this folder stops here (a first run's manifest is made,
+    # and locked, only once the cluster answers: nothing is written before)
+    lock = _lock(out_dir) if (out_dir / MANIFEST_NAME).is_file() else None
+    try:
+        client = _client(scheduler, workers)
+    except BaseException:
+        if lock is not None:
+            lock.close()
+        raise
+    manifest = None
+    bind_futures = []
     try:
         out_dir.mkdir(exist_ok=True)
-        lock = _lock(out_dir)
+        lock = lock or _lock(out_dir)
         manifest = Manifest(out_dir)
         info = client.scheduler_info()
         summary.workers = len(info.get("workers", {}))
+        threaded = [w for w, n in client.nthreads().items() if n > 1]
+        if threaded:  # a task sets process-wide state (its bound faces, its printing): one at a time
+            raise FaceAnimError(f"{len(threaded)} of the cluster's workers run several threads; faceanim's tasks "
+                                "need single-threaded workers (dask worker --nthreads 1 --nworkers N)")
         summary.dashboard = client.dashboard_link if "dashboard" in info.get("services", {}) else None
         if on_start is not None:
             on_start(summary)
         from distributed import as_completed
 
-        window = max(2, IN_FLIGHT_PER_WORKER * max(1, summary.workers))
+        # enough in flight for every worker, and for workers that join later (an adaptive cluster)
+        window = max(IN_FLIGHT_MIN, IN_FLIGHT_PER_WORKER * summary.workers)
         users = {}  # face -> tasks not yet finished that use it
         for t in todo:
             for f in t.faces:
@@ -134,7 +150,7 @@ def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, sc
                 for f in t.faces:
                     if f not in bound:
                         bound[f] = client.submit(_timed_bind, bind, f, retries=retries, pure=False)
-                        summary.bind_seconds.append(client.submit(_seconds, bound[f], pure=False))
+                        bind_futures.append(client.submit(_seconds, bound[f], pure=False))
                 faces = {f: bound[f] for f in t.faces}
             else:
                 faces = {}
@@ -152,8 +168,8 @@ def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, sc
                     result = fut.result()
                 except Exception as exc:  # noqa: BLE001 -- a task that kept crashing its workers, or a bug
                     result = {"state": "failed", "outputs": [], "seconds": 0.0,
-                              "error": f"the task failed {retries + 1} times ({type(exc).__name__}); rerun the "
-                                       "batch to retry it"}
+                              "error": f"its worker died or the task crashed {retries + 1} times "
+                                       f"({type(exc).__name__}); rerun the batch to try it again"}
                 if result["state"] == "done":
                     summary.done.append(t.output)
                     summary.task_seconds.append(result["seconds"])
@@ -172,7 +188,7 @@ def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, sc
                 nxt = submit_next()
                 if nxt:
                     flow.add(nxt)
-            summary.bind_seconds = [b.result() if hasattr(b, "result") else b for b in summary.bind_seconds]
+            summary.bind_seconds += [b.result() for b in bind_futures]
     finally:
         cluster = client.cluster
         client.close()
@@ -191,9 +207,7 @@ def _lock(out_dir: Path):
     manifest for this batch: two batches on one folder would both redo everything."""
     import fcntl
 
-    from faceanim.batch.manifest import NAME
-
-    fh = open(out_dir / NAME, "a")  # noqa: SIM115 -- held until the batch ends
+    fh = open(out_dir / MANIFEST_NAME, "a")  # noqa: SIM115 -- held until the batch ends
     try:
         fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
@@ -209,6 +223,9 @@ def _timed_bind(bind: Callable, face):
         return bind(face), time.perf_counter() - start
     except FaceAnimError as exc:  # bad input: its tasks report it, not a retry
         return exc, time.perf_counter() - start
+    except Exception as exc:  # noqa: BLE001 -- a bug: one line for its tasks, as work() reports its own
+        return FaceAnimError(f"internal error while binding the face ({type(exc).__name__}); please report it "
+                             "with the job file"), time.perf_counter() - start
 
 
 def _seconds(timed) -> float:
@@ -224,7 +241,7 @@ def _run_one(work: Callable, bind: Callable, argv, out_dir: str, faces: dict, ke
             bind_seconds.append(faces[key][1])
     bound = {}
     for key, (face, _) in faces.items():
-        if isinstance(face, FaceAnimError):
+        if isinstance(face, FaceAnimError):  # bad input (or a bug) while binding: one line for each task
             return {"state": "failed", "outputs": [], "error": str(face), "seconds": 0.0, "bind_seconds": bind_seconds}
         bound[key] = face
     result = work(argv, out_dir, bound)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import sys
 import time
 from functools import lru_cache
@@ -86,6 +87,16 @@ def _argv_part(name: str, value, spec, where: str) -> list[str]:
 
 
 NOT_FILES = {"say": ("text",)}  # positional arguments that are words, not files: options, not inputs
+FILE_METAVARS = {"MESH", "JSON", "SOUND", "TXT", "IMAGE", "MOTION.npz"}  # options that name files
+
+
+def faceanim_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("faceanim")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _where_refused(job, known: dict, message: str) -> str:
@@ -135,23 +146,42 @@ def plan(job, out_dir: Path):
     option_argv: list[str] = []
     option_files: dict[str, str] = {}  # options naming files (a landmarks JSON, photo points): by content too
     for name, value in job.options.items():
-        values = value if isinstance(value, list) else [value]
-        if all(isinstance(v, str) and (job.base / v).is_file() for v in values) and values:
-            # a file given as an option is relative to the job file, like the inputs
-            resolved = [str((job.base / v).resolve()) for v in values]
+        where = job.where(f"options.{name}")
+        if getattr(known[name][2], "metavar", None) in FILE_METAVARS and value is not None:
+            # a file given as an option is relative to the job file, like the inputs, and must exist
+            values = value if isinstance(value, list) else [value]
+            resolved = []
+            for v in values:
+                path = Path(os.path.normpath(job.base / str(v)))
+                if not path.is_file():
+                    raise CommandError(f"option '{name}' ({where}): '{shown(v, 80)}' is not a file")
+                resolved.append(str(path))
             value = resolved if isinstance(value, list) else resolved[0]
             option_files.update({f"{name}[{k}]": p for k, p in enumerate(resolved)})
-        option_argv += _argv_part(name, value, known[name], job.where(f"options.{name}"))
+        option_argv += _argv_part(name, value, known[name], where)
+    # the files a task reads, which no task may write (a batch writing into its inputs' folder)
+    read = {str(Path(p).resolve()) for t in tasks for _, p in t.inputs} | \
+        {str(Path(p).resolve()) for p in option_files.values()}
     parser = _parser()
     planned = []
+    version = faceanim_version()
     for t in tasks:
-        argv = list(words)
-        positional = []
-        for name, path in t.inputs:
-            part = _argv_part(name, path, known[name], job.where(f"inputs.{name}"))
-            (positional if known[name][0] == "positional" else argv).extend(part)
         out = out_dir / t.output
-        argv = argv[:len(words)] + positional + argv[len(words):] + option_argv + ["-o", str(out)]
+        if str(out.resolve()) in read:
+            raise CommandError(f"output ({job.where('output')}) '{shown(t.output, 80)}' would overwrite an input of "
+                               "the job; choose another output folder or pattern")
+
+        def command(paths) -> list[str]:
+            argv, positional = list(words), []
+            for name, path in paths:
+                part = _argv_part(name, path, known[name], job.where(f"inputs.{name}"))
+                (positional if known[name][0] == "positional" else argv).extend(part)
+            return argv[:len(words)] + positional + argv[len(words):] + option_argv
+
+        argv = command(t.inputs) + ["-o", str(out)]
+        # what the result depends on, wherever the data and OUTDIR are: the inputs by name (their
+        # content is hashed), the options, the output's place, faceanim's version
+        recorded = command([(name, f"{{{name}}}") for name, _ in t.inputs]) + [t.output, version]
         err = io.StringIO()
         try:
             with contextlib.redirect_stderr(err):
@@ -168,7 +198,6 @@ def plan(job, out_dir: Path):
         except OSError:
             raise CommandError(f"an input of task '{shown(t.output, 80)}' cannot be read; check its permissions") \
                 from None
-        recorded = argv[:-1] + [t.output]  # the signature does not depend on where OUTDIR is
         planned.append(PlannedTask(t.output, argv, tuple(dict.fromkeys(faces)),
                                    signature(job.operation, recorded, inputs)))
     return planned
@@ -261,7 +290,8 @@ def _cmd_batch(args) -> None:
         bar.close()
     print(f"{len(summary.done)} done, {len(summary.skipped)} skipped (done before), {len(summary.failed)} failed "
           f"in {summary.seconds:.1f} s")
-    for output, error in summary.failed.items():
+    order = {t.output: k for k, t in enumerate(tasks)}
+    for output, error in sorted(summary.failed.items(), key=lambda kv: order[kv[0]]):  # in task order
         print(f"failed: {shown(output, 120)}: {error}", file=sys.stderr)
     if summary.failed:
         raise SystemExit(1)
