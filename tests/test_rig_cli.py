@@ -355,3 +355,15 @@ def test_a_custom_vrm_expression_needs_its_own_printable_name(tmp_path, name):
         write_vrm(tmp_path / "a.vrm", face.mesh, {"s": shape}, {}, head_pivot=face.landmarks[1],
                   rotation=face.frame.rotation, custom={name: {"s": 1.0}})
     assert not (tmp_path / "a.vrm").exists()
+
+
+def test_the_rigged_glb_passes_the_khronos_validator(tmp_path):
+    """Every set (viseme_sil moves nothing: a target with no rows) plain and --compact: 0 errors,
+    0 warnings."""
+    from tests.test_gltf import _validate
+
+    for extra in ([], ["--compact"]):
+        out = tmp_path / f"r{len(extra)}.glb"
+        assert run(["rig", "-o", out, *extra]) == 0
+        report = _validate(out)
+        assert report["numErrors"] == 0 and report["numWarnings"] == 0, report
