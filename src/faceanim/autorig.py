@@ -28,6 +28,7 @@ The sets (:data:`RIG_SETS`), each built from the input mesh and its landmarks al
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -210,3 +211,31 @@ def vrm_expressions(auto: AutoRig) -> tuple[dict[str, dict[str, float]], dict[st
         else:
             skipped[preset] = "none of its shapes is in the rig (add --set arkit or the set it needs)"
     return out, skipped
+
+
+def write_rigged(path, auto: AutoRig, compact: bool = False, meta: dict | None = None) -> tuple[Path, dict]:
+    """The rig as a file by the suffix of ``path``: ``.glb`` (every shape a morph target, the sets
+    in the scene's ``extras.morph_sets``; ``compact``: quantised) or ``.vrm`` (VRM 1.0: the presets
+    of :func:`vrm_expressions`, each ARKit shape also a custom expression by Apple's name for apps
+    that drive them, the gaze's range maps reaching a look shape's full weight at its eye angle,
+    ``meta`` over the restrictive defaults). Returns (the path, the VRM presets left out with why)."""
+    from faceanim.io.gltf import write_gltf
+
+    face = auto.face
+    extras = {"morph_sets": auto.sets}
+    if Path(path).suffix.lower() != ".vrm":
+        return write_gltf(path, face.mesh, auto.shapes, quantize=compact, extras=extras), {}
+    from faceanim.io.vrm import write_vrm
+    from faceanim.perform import head_pivot
+    from faceanim.rig.arkit import LOOK_ANGLES
+
+    expressions, left_out = vrm_expressions(auto)
+    look_at = {key: {"inputMaxValue": round(float(np.degrees(LOOK_ANGLES[look])), 2), "outputScale": 1.0}
+               for key, look in (("rangeMapHorizontalOuter", "Out"), ("rangeMapHorizontalInner", "In"),
+                                 ("rangeMapVerticalUp", "Up"), ("rangeMapVerticalDown", "Down"))}
+    custom = {name: {name: 1.0} for name in auto.sets.get("arkit", [])}
+    written = write_vrm(path, face.mesh, auto.shapes, expressions, head_pivot=head_pivot(face),
+                        rotation=face.frame.rotation, scale=metres_per_unit(face),
+                        eyes=0.5 * (face.landmarks[468] + face.landmarks[473]), meta=meta, look_at=look_at,
+                        custom=custom, extras=extras)
+    return written, left_out

@@ -24,7 +24,7 @@ def _meta_text(flag: str):
 
 
 def _cmd_rig(args) -> None:
-    from faceanim.autorig import auto_rig, metres_per_unit, parse_sets, vrm_expressions
+    from faceanim.autorig import auto_rig, parse_sets, write_rigged
 
     sets = parse_sets(args.set)
     out = Path(args.output)
@@ -39,31 +39,10 @@ def _cmd_rig(args) -> None:
     face = load_face(args)
     auto = auto_rig(face, sets)
     counts = ", ".join(f"{name} {len(names)}" for name, names in auto.sets.items())
-    if out.suffix.lower() == ".vrm":
-        import numpy as np
-
-        from faceanim.io.vrm import write_vrm
-        from faceanim.perform import head_pivot
-        from faceanim.rig.arkit import LOOK_ANGLES
-
-        expressions, left_out = vrm_expressions(auto)
-        meta = {"name": args.title or shown(face.name, VRM_TEXT_LIMIT), "authors": [args.author]}
-        # the gaze reaches a look shape's full weight at the angle that shape turns the eye
-        look_at = {key: {"inputMaxValue": round(float(np.degrees(LOOK_ANGLES[look])), 2), "outputScale": 1.0}
-                   for key, look in (("rangeMapHorizontalOuter", "Out"), ("rangeMapHorizontalInner", "In"),
-                                     ("rangeMapVerticalUp", "Up"), ("rangeMapVerticalDown", "Down"))}
-        # each ARKit shape also as a custom expression by Apple's name, for apps that drive them
-        custom = {name: {name: 1.0} for name in auto.sets.get("arkit", [])}
-        written = write_vrm(out, face.mesh, auto.shapes, expressions, head_pivot=head_pivot(face),
-                            rotation=face.frame.rotation, scale=metres_per_unit(face),
-                            eyes=0.5 * (face.landmarks[468] + face.landmarks[473]), meta=meta,
-                            look_at=look_at, custom=custom, extras={"morph_sets": auto.sets})
-        if left_out:
-            print("VRM presets left out: " + "; ".join(f"{p} ({why})" for p, why in left_out.items()), file=sys.stderr)
-    else:
-        from faceanim.io.gltf import write_gltf
-
-        written = write_gltf(out, face.mesh, auto.shapes, quantize=args.compact, extras={"morph_sets": auto.sets})
+    meta = {"name": args.title or shown(face.name, VRM_TEXT_LIMIT), "authors": [args.author]}
+    written, left_out = write_rigged(out, auto, compact=args.compact, meta=meta)
+    if left_out:
+        print("VRM presets left out: " + "; ".join(f"{p} ({why})" for p, why in left_out.items()), file=sys.stderr)
     print(f"{len(auto.shapes)} morph targets ({counts})")
     if auto.skipped:
         by_reason: dict[str, list[str]] = {}
