@@ -142,7 +142,7 @@ def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, sc
         pending = iter(todo)
         running = {}
 
-        def submit_next() -> bool:
+        def submit_next():  # the next task's future, or False when none is left
             t = next(pending, None)
             if t is None:
                 return False
