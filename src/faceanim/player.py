@@ -134,7 +134,8 @@ ARKIT_FIT_RIDGE = 0.01  # the fit's ridge, a share of the shapes' mean squared n
 
 def arkit_from_stream(face: Face, rig: FapRig, stream: FapStream) -> tuple[np.ndarray, np.ndarray, float]:
     """A FAP stream as Live Link Face curves for ``face``: per frame, the ARKit weights in [0, 1]
-    whose shapes on this face (:func:`~faceanim.rig.arkit.arkit_rig`) best reproduce the FAP
+    whose shapes on this face (:func:`~faceanim.rig.arkit.arkit_shapes`, those ``faceanim rig``
+    writes: the curves drive that rig as they are) best reproduce the FAP
     rig's expression (bounded least squares with a small ridge over the visible face: skin inside
     the face oval turned towards the camera, where both rigs can be compared, not the mouth's
     inside, which the FAP rig leaves still; the head's rotation is taken apart). Returns ((F, 52) weights in Live Link Face's order, tongueOut 0; (F, 3) head
@@ -144,9 +145,9 @@ def arkit_from_stream(face: Face, rig: FapRig, stream: FapStream) -> tuple[np.nd
     from scipy.optimize import lsq_linear
 
     from faceanim.io.arkit_csv import ARKIT_NAMES
-    from faceanim.rig.arkit import apple_name, arkit_rig
+    from faceanim.rig.arkit import apple_name, arkit_shapes
 
-    arkit, _ = arkit_rig(face)
+    arkit = Rig.from_blendshapes(face.mesh, arkit_shapes(face, rig.eyes)[0])
     curves = rig.stream_curves(stream)
     index = {f.name: f.number - 1 for f in faps()}
     head = np.stack([curves[:, index[n]] for n in ("head_yaw", "head_pitch", "head_roll")], axis=1) * 1e-5
