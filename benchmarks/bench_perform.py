@@ -36,7 +36,7 @@ from faceanim.face.face import Face
 from faceanim.face.generic_head import generic_head
 from faceanim.io.video import video_frames, video_info
 from faceanim.perform import default_database, face_regions, perform, performance_rig
-from faceanim.rig.performance import correspondence, jacobians
+from faceanim.face.registration import face_to_head
 
 
 def main() -> None:
@@ -82,14 +82,9 @@ def main() -> None:
     # 2. run-time retargeting: per-vertex transfer vs blended bases
     head = generic_head()
     regions = face_regions()
-    tri, bary = correspondence(face, head)
+    tri, bary = face_to_head(face)
     corners = head.mesh.faces[tri]
-    x_s = np.einsum("vc,vcd->vd", bary, head.mesh.vertices[corners])
-    from faceanim.deform.rbf import landmark_tps
-    from faceanim.rig.performance import SMOOTHING
-
-    f = landmark_tps(head.landmarks(), face.landmarks, "landmarks", merge_repeated=True, smoothing=SMOOTHING)
-    jac = jacobians(f, x_s, 1e-3 * float(np.ptp(head.landmarks(), axis=0).max()))
+    jac = np.broadcast_to(face.registration.scale * face.registration.rotation, (len(tri), 3, 3))
     curves = db.basis_curves
     shapes = np.stack([head.shape(n) for n in db.curve_names])  # (C, Vs, 3)
 

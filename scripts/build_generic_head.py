@@ -11,9 +11,24 @@ scans, USC ICT, MIT licence: its notice ships as ``assets/LICENSE-ICT-FaceKit.tx
 - the 478 MediaPipe landmarks detected once on a render of it and stored on its triangles
   (triangle + barycentric), so they follow any deformation of the head;
 - its 53 expression blendshapes (Apple ARKit names with ``_L``/``_R``) stored as sparse float16
-  deltas (metres): they let the photo pipeline take the smile off a smiling photo.
+  deltas (metres): they let the photo pipeline take the smile off a smiling photo;
+- ICT's 100 PCA identity modes (``identity_modes.npz``: light-stage scans of many people; a head is
+  ``neutral + sum_i w_i mode_i`` with ``w_i ~ N(0, 1)``), all 100 kept, each stored as int8 with a
+  float32 scale of its own (metres per step): 4.5 MB in the asset, a sampled head within 0.1 mm
+  RMS of the float16 source. The table behind that choice (``--modes-table``):
 
-Usage: ``python scripts/build_generic_head.py ../shared/data/ict-facekit`` (writes
+  | modes | storage | asset MB | truncation RMS mm | rounding RMS mm |
+  |---:|---|---:|---:|---:|
+  | 30 | int8 | 1.4 | 1.10 | 0.10 |
+  | 50 | int8 | 2.3 | 0.69 | 0.10 |
+  | 50 | float16 | 5.7 | 0.69 | 0 |
+  | 100 | int8 | 4.5 | 0 | 0.10 |
+  | 100 | float16 | 11.4 | 0 | 0 |
+
+  (RMS distance over the kept vertices of 50 heads sampled with ``w ~ N(0, 1)``; a sampled head
+  is 5.8 mm RMS from the mean head.)
+
+Usage: ``python scripts/build_generic_head.py ../shared/data/ict-facekit [--keep-landmarks]`` (writes
 ``src/faceanim/assets/generic_head.npz``; the result is committed, users never run this).
 """
 
@@ -47,12 +62,78 @@ def obj_vertices(path: Path) -> np.ndarray:
     return np.array(rows, dtype=np.float64)
 
 
+def identity_modes(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """ICT's identity modes on the kept vertices as (int8 (K, KEEP, 3), float32 (K,) metres per
+    step): each mode rounded on a scale of its own, its largest component at 127 steps."""
+    modes = np.load(path)["modes"][:, :KEEP].astype(np.float64) * CM
+    scale = np.abs(modes).max(axis=(1, 2)) / 127.0
+    return np.round(modes / scale[:, None, None]).astype(np.int8), scale.astype(np.float32)
+
+
+def modes_table(path: Path, samples: int = 50) -> None:
+    """Print the accuracy/size table of the module docstring."""
+    import zlib
+
+    modes = np.load(path)["modes"][:, :KEEP].astype(np.float64) * CM
+    q, scale = identity_modes(path)
+    w = np.random.default_rng(0).standard_normal((samples, len(modes)))
+    full = np.einsum("sk,kvd->svd", w, modes)
+    print("| modes | storage | asset MB | truncation RMS mm | rounding RMS mm |")
+    for k in (30, 50, 100):
+        kept = np.einsum("sk,kvd->svd", w[:, :k], modes[:k])
+        quant = np.einsum("sk,kvd->svd", w[:, :k], q[:k] * scale[:k, None, None].astype(np.float64))
+        for kind, raw, err in (("int8", q[:k].tobytes(), quant - kept),
+                               ("float16", modes[:k].astype(np.float16).tobytes(), kept.astype(np.float16) - kept)):
+            print(f"| {k} | {kind} | {len(zlib.compress(raw, 6)) / 1e6:.1f} | "
+                  f"{1e3 * np.sqrt(np.mean((full - kept) ** 2)) * np.sqrt(3):.2f} | "
+                  f"{1e3 * np.sqrt(np.mean(err ** 2)) * np.sqrt(3):.2f} |")
+    print(f"a sampled head is {1e3 * np.sqrt(np.mean(full ** 2)) * np.sqrt(3):.1f} mm RMS from the mean head")
+
+
+def detected_landmarks(mesh, faces: np.ndarray, vertices: np.ndarray, ict: Path):
+    """The 478 MediaPipe landmarks detected on a render of the head, as (triangles, barycentric)."""
+    from faceanim.face.landmarks import detect_landmarks
+
+    lms = detect_landmarks(mesh)
+    order = np.argsort(lms.indices)
+    assert (lms.indices[order] == np.arange(478)).all()
+    tri, bary = lms.triangles[order].copy(), lms.barycentric[order].copy()
+    positions = lms.positions[order]
+    # the face mesh's 468 surface points lie on the skin: a ray through an open eye's lid margin
+    # can land on the eyeball behind it (then a blink would not move the lid's landmarks)
+    skin_tri = (faces < PARTS["skin"][1]).all(axis=1)
+    off_skin = np.flatnonzero(~skin_tri[tri[:468]])
+    if len(off_skin):
+        pos, _, t = mesh.closest_points(positions[off_skin], skin_tri)
+        tri[off_skin] = t
+        bary[off_skin] = mesh.barycentric(pos, t)
+    # the lips are closed: detection puts the upper and lower inner-lip points on one spot, and the
+    # ray lands on one lip. Attach each to its own lip: the lower lip is what jawOpen moves down.
+    drop = -(obj_vertices(ict / "jawOpen.obj")[:KEEP] * CM - vertices)[:, 1]
+    moving = drop > 0.5 * drop[faces].max()
+    lower_tri = moving[faces].all(axis=1)
+    upper_tri = (~moving[faces]).all(axis=1)
+    for group, allowed in ((LOWER_INNER_LIP, lower_tri), (UPPER_INNER_LIP, upper_tri)):
+        pos, _, t = mesh.closest_points(positions[list(group)], allowed)
+        tri[list(group)] = t
+        bary[list(group)] = mesh.barycentric(pos, t)
+
+    return tri, bary
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("ict", type=Path, help="the ict-facekit folder (generic_neutral_mesh.obj and the 53 shapes)")
+    parser.add_argument("--keep-landmarks", action="store_true",
+                        help="reuse the landmarks of the asset already there instead of detecting them "
+                             "(detection moves them by float noise, and everything built on them would move)")
+    parser.add_argument("--modes-table", action="store_true",
+                        help="print the identity modes' accuracy/size table and stop")
     args = parser.parse_args(argv)
+    if args.modes_table:
+        modes_table(args.ict / "identity_modes.npz")
+        return
 
-    from faceanim.face.landmarks import detect_landmarks
     from faceanim.face.mesh import Mesh
     from faceanim.io.meshio import load_mesh
 
@@ -71,29 +152,11 @@ def main(argv=None) -> None:
     faces = src.faces[keep_tri]
     mesh = Mesh(vertices, faces, name="generic_head", source="faceanim:generic_head")
 
-    lms = detect_landmarks(mesh)
-    order = np.argsort(lms.indices)
-    assert (lms.indices[order] == np.arange(478)).all()
-    tri, bary = lms.triangles[order].copy(), lms.barycentric[order].copy()
-    positions = lms.positions[order]
-    # the face mesh's 468 surface points lie on the skin: a ray through an open eye's lid margin
-    # can land on the eyeball behind it (then a blink would not move the lid's landmarks)
-    skin_tri = (faces < PARTS["skin"][1]).all(axis=1)
-    off_skin = np.flatnonzero(~skin_tri[tri[:468]])
-    if len(off_skin):
-        pos, _, t = mesh.closest_points(positions[off_skin], skin_tri)
-        tri[off_skin] = t
-        bary[off_skin] = mesh.barycentric(pos, t)
-    # the lips are closed: detection puts the upper and lower inner-lip points on one spot, and the
-    # ray lands on one lip. Attach each to its own lip: the lower lip is what jawOpen moves down.
-    drop = -(obj_vertices(args.ict / "jawOpen.obj")[:KEEP] * CM - vertices)[:, 1]
-    moving = drop > 0.5 * drop[faces].max()
-    lower_tri = moving[faces].all(axis=1)
-    upper_tri = (~moving[faces]).all(axis=1)
-    for group, allowed in ((LOWER_INNER_LIP, lower_tri), (UPPER_INNER_LIP, upper_tri)):
-        pos, _, t = mesh.closest_points(positions[list(group)], allowed)
-        tri[list(group)] = t
-        bary[list(group)] = mesh.barycentric(pos, t)
+    if args.keep_landmarks:
+        with np.load(ASSETS / "generic_head.npz") as old:
+            tri, bary = old["landmark_triangles"].astype(np.int64), old["landmark_barycentric"].astype(np.float64)
+    else:
+        tri, bary = detected_landmarks(mesh, faces, vertices, args.ict)
 
     shapes, names = {}, []
     for path in sorted(args.ict.glob("*.obj*")):
@@ -108,6 +171,8 @@ def main(argv=None) -> None:
     if len(names) != 53:
         raise SystemExit(f"expected the 53 ICT expression shapes, found {len(names)}")
 
+    modes, mode_scale = identity_modes(args.ict / "identity_modes.npz")
+
     ASSETS.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(
         ASSETS / "generic_head.npz",
@@ -119,12 +184,15 @@ def main(argv=None) -> None:
         landmark_triangles=tri.astype(np.int32),
         landmark_barycentric=bary.astype(np.float32),
         shape_names=np.array(names),
+        identity_modes=modes,
+        identity_scale=mode_scale,
         **shapes,
     )
     (ASSETS / "LICENSE-ICT-FaceKit.txt").write_text(
         "faceanim's generic head (generic_head.npz) is derived from the ICT Face Model\n"
-        "(ICT-VGL/ICT-FaceKit, FaceXModel/generic_neutral_mesh.obj and its 53 expression shapes):\n"
-        "parts kept, units in metres, expression shapes stored as deltas.\n\n"
+        "(ICT-VGL/ICT-FaceKit, FaceXModel/generic_neutral_mesh.obj, its 53 expression shapes and its\n"
+        "100 identity modes identity000 ... identity099): parts kept, units in metres, expression\n"
+        "shapes stored as deltas, identity modes as deltas rounded to int8 with a scale per mode.\n\n"
         + (args.ict / "LICENSE").read_text())
     print(f"wrote {ASSETS / 'generic_head.npz'}: {len(vertices)} vertices, {len(faces)} triangles, "
           f"{len(names)} shapes")

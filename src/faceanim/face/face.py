@@ -152,6 +152,15 @@ class Face:
 
         return feature_points(self.mesh, self.landmarks)
 
+    @cached_property
+    def registration(self):
+        """The generic head registered to this face (:class:`~faceanim.face.registration.Registration`):
+        its morphable model fitted, then non-rigid ICP onto the surface; the one dense
+        correspondence every method uses."""
+        from faceanim.face.registration import register
+
+        return register(self)
+
     def view(self, margin: float = VIEW_MARGIN, yaw: float = VIEW_YAW, pitch: float = VIEW_PITCH) -> dict:
         """The camera faceanim shows a face with (keyword arguments of the renderer): framed on the
         face oval with a margin (a full head would render small), turned a little to show depth."""

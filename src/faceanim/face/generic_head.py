@@ -9,7 +9,9 @@ vertices in metres (+z forward, +y up, +x the subject's left) with the parts
     skin (head, neck, mouth socket, eye sockets), gums_tongue, teeth, eyeball_L, eyeball_R
 
 as separate shells of one mesh, its 478 MediaPipe landmarks attached to its triangles, and its
-53 expression blendshapes (ARKit names, ``_L``/``_R`` halves) as deltas.
+53 expression blendshapes (ARKit names, ``_L``/``_R`` halves) as deltas, and ICT's 100 PCA identity
+modes: a morphable head, ``neutral + sum_i w_i mode_i`` with a standard normal prior on ``w``
+(:meth:`GenericHead.identity_basis`; how they are stored: the build script's docstring).
 """
 
 from __future__ import annotations
@@ -43,6 +45,28 @@ class GenericHead:
     landmark_barycentric: np.ndarray
     shape_names: tuple
     _shapes: dict
+    _identity: tuple = (np.zeros((0, 0, 3), np.int8), np.zeros(0, np.float32))
+
+    @property
+    def n_identity(self) -> int:
+        """How many identity modes the head has."""
+        return len(self._identity[1])
+
+    def identity_basis(self, count: int | None = None) -> np.ndarray:
+        """(K, V, 3) float32: the first ``count`` (all by default) identity modes, each the
+        displacement of one standard deviation of head shape (metres)."""
+        q, scale = self._identity
+        k = len(scale) if count is None else int(count)
+        return q[:k].astype(np.float32) * scale[:k, None, None]
+
+    def identity(self, weights) -> np.ndarray:
+        """(V, 3) the neutral head of identity ``weights`` (K,) (the first K modes)."""
+        w = np.asarray(weights, dtype=np.float64).ravel()
+        q, scale = self._identity
+        out = self.mesh.vertices.copy()
+        for k in np.flatnonzero(w):
+            out += (w[k] * float(scale[k])) * q[k]
+        return out
 
     def landmarks(self, vertices: np.ndarray | None = None) -> np.ndarray:
         """(478, 3) landmark positions on the head (or on ``vertices``, a deformed copy)."""
@@ -97,4 +121,5 @@ def generic_head() -> GenericHead:
               for n in names}
     bary = data["landmark_barycentric"].astype(np.float64)
     bary /= bary.sum(axis=1, keepdims=True)  # stored as float32: sum exactly to 1 again
-    return GenericHead(mesh, parts, data["landmark_triangles"].astype(np.int64), bary, names, shapes)
+    identity = (data["identity_modes"], data["identity_scale"].astype(np.float32))
+    return GenericHead(mesh, parts, data["landmark_triangles"].astype(np.int64), bary, names, shapes, identity)
