@@ -12,6 +12,11 @@ scans, USC ICT, MIT licence: its notice ships as ``assets/LICENSE-ICT-FaceKit.tx
   (triangle + barycentric), so they follow any deformation of the head;
 - its 53 expression blendshapes (Apple ARKit names with ``_L``/``_R``) stored as sparse float16
   deltas (metres): they let the photo pipeline take the smile off a smiling photo;
+- ``tongueOut``, which ICT lacks (ARKit's 52nd shape), made here by geometry: ICT's tongue is
+  fused with its gums in one shell, so the tongue is the part of that shell away from the teeth
+  (over 3 mm) between the mouth floor and the palate, in front of the throat; it is pushed 3 cm
+  forward through the lips with its tip bending 6 mm down, the push fading in from the root and
+  out towards the gums (:func:`tongue_out`);
 - ICT's 100 PCA identity modes (``identity_modes.npz``: light-stage scans of many people; a head is
   ``neutral + sum_i w_i mode_i`` with ``w_i ~ N(0, 1)``), all 100 kept, each stored as int8 with a
   float32 scale of its own (metres per step): 4.5 MB in the asset, a sampled head within 0.1 mm
@@ -60,6 +65,31 @@ def obj_vertices(path: Path) -> np.ndarray:
     with opener(path, "rt") as fh:
         rows = [line.split()[1:4] for line in fh if line.startswith("v ")]
     return np.array(rows, dtype=np.float64)
+
+
+# the tongue in the generic head's frame (metres; the gums_tongue shell): what lies over TONGUE_GAP from
+# the teeth, between the mouth floor and the palate (heights) and in front of the throat (depth)
+TONGUE_GAP, TONGUE_FLOOR, TONGUE_TOP, TONGUE_ROOT, TONGUE_LENGTH = 0.003, -0.046, -0.026, 0.03, 0.045
+TONGUE_PUSH, TONGUE_DROP = 0.03, 0.006  # how far the tip goes forward and bends down
+
+
+def tongue_out(vertices: np.ndarray) -> np.ndarray:
+    """(V, 3) the ``tongueOut`` displacement of the head ``vertices`` (metres, ICT's parts):
+    each tongue vertex moves forward by ``TONGUE_PUSH * w`` and down by ``TONGUE_DROP * w^2``,
+    ``w`` rising from 0 at the root to 1 at the tip and fading to 0 near the gums."""
+    from scipy.spatial import cKDTree
+
+    from faceanim.face.regions import smoothstep
+
+    g = np.arange(*PARTS["gums_tongue"])
+    gap, _ = cKDTree(vertices[slice(*PARTS["teeth"])]).query(vertices[g])
+    y, z = vertices[g, 1], vertices[g, 2]
+    tongue = (gap > TONGUE_GAP) & (y > TONGUE_FLOOR) & (y < TONGUE_TOP) & (z > TONGUE_ROOT)
+    w = smoothstep((z - TONGUE_ROOT - 0.01) / TONGUE_LENGTH) * smoothstep((gap - TONGUE_GAP) / 0.004) * tongue
+    out = np.zeros_like(vertices)
+    out[g, 2] = TONGUE_PUSH * w
+    out[g, 1] = -TONGUE_DROP * w ** 2
+    return out
 
 
 def identity_modes(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -170,6 +200,11 @@ def main(argv=None) -> None:
         names.append(name)
     if len(names) != 53:
         raise SystemExit(f"expected the 53 ICT expression shapes, found {len(names)}")
+    delta = tongue_out(vertices)
+    rows = np.flatnonzero(np.abs(delta).max(axis=1) > 1e-7)
+    shapes["shape_rows_tongueOut"] = rows.astype(np.int32)
+    shapes["shape_delta_tongueOut"] = delta[rows].astype(np.float16)
+    names.append("tongueOut")
 
     modes, mode_scale = identity_modes(args.ict / "identity_modes.npz")
 
@@ -192,7 +227,8 @@ def main(argv=None) -> None:
         "faceanim's generic head (generic_head.npz) is derived from the ICT Face Model\n"
         "(ICT-VGL/ICT-FaceKit, FaceXModel/generic_neutral_mesh.obj, its 53 expression shapes and its\n"
         "100 identity modes identity000 ... identity099): parts kept, units in metres, expression\n"
-        "shapes stored as deltas, identity modes as deltas rounded to int8 with a scale per mode.\n\n"
+        "shapes stored as deltas, identity modes as deltas rounded to int8 with a scale per mode,\n"
+        "and a tongueOut shape made by faceanim from the tongue's geometry.\n\n"
         + (args.ict / "LICENSE").read_text())
     print(f"wrote {ASSETS / 'generic_head.npz'}: {len(vertices)} vertices, {len(faces)} triangles, "
           f"{len(names)} shapes")

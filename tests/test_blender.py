@@ -193,7 +193,7 @@ def test_signed_weights_are_clamped_by_blenders_importer(blender, rig_and_curves
 
 @pytest.mark.skipif(not TAKE.is_file(), reason="../shared/data/arkit-curves is not here")
 def test_arkit_play_imports_with_apples_names(blender, tmp_path):
-    """``faceanim arkit play``: 51 shape keys named as Apple names them (eyeBlinkLeft first,
+    """``faceanim arkit play``: 52 shape keys named as Apple names them (eyeBlinkLeft first,
     jawOpen ...), a 134 s take as one action, and the head node's rotation as an object action."""
     from faceanim.cli import main
     from faceanim.io.arkit_csv import ARKIT_NAMES
@@ -203,7 +203,7 @@ def test_arkit_play_imports_with_apples_names(blender, tmp_path):
     assert main(["arkit", "play", str(TAKE), "--fps", str(FPS), "-o", str(glb)]) in (0, None)
     report, arrays = check(blender, glb)
     keys = report["meshes"][0]["shape_keys"]
-    assert keys == [apple_name(n) for n in ARKIT_NAMES if n != "TongueOut"]
+    assert keys == [apple_name(n) for n in ARKIT_NAMES]
     assert keys[0] == "eyeBlinkLeft" and "jawOpen" in keys
     assert_imports_as_written(report, arrays, glb, check_targets={"jawOpen", "eyeBlinkLeft", "mouthSmileLeft"})
     head = [r for r in report["node_animation"] if r["object"] == "head"]

@@ -21,7 +21,7 @@ FW = DATA / "facewarehouse-tester1"
 needs_ict = pytest.mark.skipif(not ICT.is_dir(), reason="../shared/data/ict-facekit is not here")
 needs_fw = pytest.mark.skipif(not FW.is_dir(), reason="../shared/data/facewarehouse-tester1 is not here")
 
-APPLE_51 = [
+APPLE_52 = [
     "eyeBlinkLeft", "eyeLookDownLeft", "eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft", "eyeSquintLeft",
     "eyeWideLeft", "eyeBlinkRight", "eyeLookDownRight", "eyeLookInRight", "eyeLookOutRight", "eyeLookUpRight",
     "eyeSquintRight", "eyeWideRight", "jawForward", "jawRight", "jawLeft", "jawOpen", "mouthClose", "mouthFunnel",
@@ -30,7 +30,7 @@ APPLE_51 = [
     "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper", "mouthPressLeft", "mouthPressRight",
     "mouthLowerDownLeft", "mouthLowerDownRight", "mouthUpperUpLeft", "mouthUpperUpRight", "browDownLeft",
     "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight", "cheekPuff", "cheekSquintLeft",
-    "cheekSquintRight", "noseSneerLeft", "noseSneerRight"]  # Apple's names, Live Link Face's order, no tongueOut
+    "cheekSquintRight", "noseSneerLeft", "noseSneerRight", "tongueOut"]  # Apple's names, Live Link Face's order
 OCULUS = ["viseme_" + v for v in ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "I", "O", "U")]
 
 
@@ -62,11 +62,11 @@ def default_rig(tmp_path_factory):
 
 def test_names_sets_and_the_mesh_come_back_as_they_went_in(default_rig):
     gltf, names, _, positions = default_rig
-    assert names == APPLE_51 + OCULUS
+    assert names == APPLE_52 + OCULUS
     face = Face.default()
     assert len(positions) == face.mesh.n_vertices
     assert np.allclose(positions, face.mesh.vertices, atol=1e-6)  # same order, same places
-    assert gltf.scenes[0].extras["morph_sets"] == {"arkit": APPLE_51, "visemes": OCULUS}
+    assert gltf.scenes[0].extras["morph_sets"] == {"arkit": APPLE_52, "visemes": OCULUS}
 
 
 def test_eye_looks_turn_the_eyeballs_rigidly_the_right_way(default_rig):
@@ -194,7 +194,7 @@ def test_vrm_binds_every_preset_on_a_face_with_eyes(tmp_path, capsys):
     assert vrm["meta"]["authors"] == ["Test Person"]
     # every ARKit shape also as a custom expression by Apple's name ("Perfect Sync" apps)
     custom = vrm["expressions"]["custom"]
-    assert list(custom) == APPLE_51
+    assert list(custom) == APPLE_52
     assert all(names[e["morphTargetBinds"][0]["index"]] == n for n, e in custom.items())
     # the gaze reaches a look shape's full weight at the angle that shape turns the eye
     from faceanim.rig.arkit import LOOK_ANGLES

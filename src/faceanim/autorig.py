@@ -6,12 +6,14 @@ The sets (:data:`RIG_SETS`), each built from the input mesh and its landmarks al
 - ``arkit``: Apple ARKit's blendshapes with Apple's exact names (``eyeBlinkLeft`` ... ; Left and
   Right are the subject's own sides). Displacement patterns learned from ICT FaceKit's
   artist-made ARKit shapes (the generic head) are carried onto the face by the retargeting of
-  :mod:`faceanim.rig.performance` (landmark spline, dense correspondence part by part, motion
-  turned by the spline's Jacobian): no shape is copied, every displacement is rebuilt on the
-  face's own surface. The ``eyeLook*`` shapes also turn the eyeballs when the mesh has them
-  (ICT's own move only the lids): by the angles a real Live Link Face take records for a look
-  curve at 1 (:data:`~faceanim.rig.arkit.LOOK_ANGLES`). ``tongueOut`` has no learned pattern (ICT has no such shape):
-  it is left out and reported.
+  :mod:`faceanim.rig.performance` (the face's registration: the generic head's morphable model
+  fitted and moved onto the surface, dense correspondence part by part, motion carried by the
+  registration's similarity): no shape is copied, every displacement is rebuilt on the face's
+  own surface. The ``eyeLook*`` shapes also turn the eyeballs when the mesh has them (ICT's own
+  move only the lids): by the angles a real Live Link Face take records for a look curve at 1
+  (:data:`~faceanim.rig.arkit.LOOK_ANGLES`). ``tongueOut`` (which ICT lacks) comes from the
+  generic head's tongue pushed out (faceanim's own); a mesh with nothing in its mouth to carry it
+  to gets none, reported.
 - ``visemes``: the 15 Oculus visemes (``viseme_sil`` ... ``viseme_U``, MPEG-4's visemes 0-14)
   as mixes of the face's own ARKit shapes (``data/visemes_arkit.json``): posed by the FAP rig
   they came out as grimaces (a review's pictures); the ARKit shapes keep jaw, lips and teeth

@@ -56,7 +56,7 @@ def _cmd_rig(args) -> None:
 def register(sub) -> None:
     from faceanim.autorig import RIG_SETS
 
-    p = sub.add_parser("rig", help="rig any face mesh: ARKit blendshapes (Apple's names, 51 of the 52), visemes, FACS AUs, "
+    p = sub.add_parser("rig", help="rig any face mesh: ARKit's 52 blendshapes (Apple's names), visemes, FACS AUs, "
                                    "emotions and FAPs as named morph targets (.glb) or a VRM 1.0 avatar (.vrm)",
                        description="Rig a face mesh automatically: landmarks detected (or --landmarks), then every "
                                    "control of the asked sets written as a named morph target on the mesh, vertex "

@@ -260,8 +260,7 @@ def register(sub) -> None:
     ap = asub.add_parser("play", help="play a Live Link Face CSV take on a face: glTF, MP4 or CSV",
                          description="Play a recorded take (ARKit's 52 blendshape curves and the head's angles, as "
                                      "Live Link Face writes them) on the face (the default face unless --face): the "
-                                     "generic head's ARKit shapes are retargeted onto it (Apple's names; tongueOut "
-                                     "has no shape) and driven by the recorded curves. .glb: morph targets, weights "
+                                     "generic head's ARKit shapes are retargeted onto it (Apple's names) and driven by the recorded curves. .glb: morph targets, weights "
                                      "and head rotation animated; .mp4: rendered; .csv: the take resampled.")
     ap.add_argument("take", metavar="TAKE.csv", help="a Live Link Face CSV recording")
     add_face(ap, positional=False)

@@ -103,7 +103,11 @@ class Face:
             if known is not None:
                 return cls(mesh, known)
             lms = detect_landmarks(mesh, forward=forward, up=up)
-        return cls(mesh, landmarks_478(mesh, lms))
+        from faceanim.face.registration import check_face
+
+        face = cls(mesh, landmarks_478(mesh, lms))
+        check_face(face)  # landmarks that fit no head (a sphere's, a torus's) are not a face's
+        return face
 
     # ------------------------------------------------------------------ derived geometry
     @property
@@ -151,6 +155,14 @@ class Face:
         from faceanim.face.fdp import feature_points
 
         return feature_points(self.mesh, self.landmarks)
+
+    @cached_property
+    def landmark_fit(self):
+        """The generic head's morphable model fitted to the landmarks alone
+        (:func:`~faceanim.face.registration.fit_landmarks`: similarity, weights, residual)."""
+        from faceanim.face.registration import fit_landmarks
+
+        return fit_landmarks(self.landmarks)
 
     @cached_property
     def registration(self):

@@ -300,9 +300,11 @@ def _zoom(img: np.ndarray, scale: float) -> tuple[np.ndarray, float, float]:
     return canvas, -x0, -y0
 
 
-def detect_landmarks_in_image(rgb: np.ndarray, scales=DETECTION_SCALES) -> np.ndarray:
+def detect_landmarks_in_image(rgb: np.ndarray, scales=DETECTION_SCALES, agreement: bool = False):
     """MediaPipe face mesh on an RGB image: (478, 3) points, x and y normalised to [0, 1], the
-    median over the image zoomed by each of ``scales``.
+    median over the image zoomed by each of ``scales``. With ``agreement``: (points, how many
+    scales found a face, the median distance of a scale's points from the median, normalised
+    image units; 0 with one scale).
 
     Raises :class:`LandmarkError` when no face is found.
     """
@@ -330,7 +332,22 @@ def detect_landmarks_in_image(rgb: np.ndarray, scales=DETECTION_SCALES) -> np.nd
             found.append(p)
     if not found:
         raise LandmarkError("no face found in the image; check that the face is frontal, lit and large in the frame")
-    return np.median(np.stack(found), axis=0)
+    stack = np.stack(found)
+    med = np.median(stack, axis=0)
+    if not agreement:
+        return med
+    spread = float(np.median(np.linalg.norm(stack[:, :, :2] - med[None, :, :2], axis=2)))
+    return med, len(found), spread
+
+
+# a rendered mesh is a face only when MediaPipe finds it at this many of the detection scales and
+# their points agree within SCALE_SPREAD (normalised image units). Measured (median point distance
+# from the scales' median): real faces (default face, FaceWarehouse's 20 scans, 12 remeshed ICT
+# identities up to 2 standard deviations) 0.0009-0.0026, VRoid's anime face 0.0038; a sphere is
+# found at one scale only, a torus at three with 0.027; cubes, planes, cylinders, cones and noise
+# are not found at all (scripts/eval_registration.py --faces prints the table)
+MIN_SCALES_FOUND = 2
+SCALE_SPREAD = 0.012
 
 
 def detect_landmarks(mesh, scheme: str = "mediapipe478", forward: str = "+z", up: str = "+y",
@@ -345,12 +362,17 @@ def detect_landmarks(mesh, scheme: str = "mediapipe478", forward: str = "+z", up
     with detection_view(mesh, forward, up, size) as r:
         image = r.render()
         try:
-            pts2d = detect_landmarks_in_image(image)
+            pts2d, found, spread = detect_landmarks_in_image(image, agreement=True)
         except LandmarkError as exc:
             raise LandmarkError(
                 f"{exc} (rendered '{mesh.name}' looking along {forward} with {up} up; "
                 "pass --forward/--up if the face points elsewhere, or give landmarks in a JSON file)"
             ) from None
+        if found < min(MIN_SCALES_FOUND, len(DETECTION_SCALES)) or spread > SCALE_SPREAD:
+            raise LandmarkError(
+                f"no face found in '{mesh.name}': the face detector's points are not stable on its render "
+                f"(looking along {forward} with {up} up); pass --forward/--up if the face points elsewhere, "
+                "or give landmarks in a JSON file")
         origins, dirs = r.pixel_rays(pts2d[:, :2])
     pos, tri = _cast_onto_surface(mesh, origins, dirs, r.rotation)
     bary = mesh.barycentric(pos, tri)

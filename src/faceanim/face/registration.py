@@ -56,6 +56,17 @@ NORMAL_COS = 0.5  # pairs whose normals are more than 60 degrees apart are rejec
 # non-rigid ICP: (stiffness alpha, landmark weight beta, rejection distance in IODs) per step
 NICP_STEPS = ((50.0, 10.0, 0.12), (20.0, 5.0, 0.1), (8.0, 2.0, 0.08), (3.0, 1.0, 0.06), (1.5, 0.5, 0.05))
 FACE_POINTS = np.arange(468)  # MediaPipe's face-mesh points (the 10 iris points lie on the eyeballs)
+# a face's landmarks must fit the morphable head (stage 1): RMS residual in the generic head's
+# inter-ocular distances, and the identity weights' root mean square. Measured on real faces: the
+# default face 0.035 / 0.84, FaceWarehouse's 20 scans 0.028-0.099 / 1.03-1.56 (the open mouths
+# fit worst), 12 remeshed ICT identities drawn at 1 and 2 standard deviations 0.034-0.066 /
+# 0.84-1.56, VRoid's anime face 0.059 / 2.06; a torus 0.18 / 4.03
+MAX_LANDMARK_ERROR = 0.15
+MAX_IDENTITY_RMS = 3.0
+# and it must have depth: the nose tip in front of the face oval's mean, in inter-ocular distances.
+# Measured: the generic head 0.76, the default face 0.74, FaceWarehouse 0.60-0.65, VRoid's anime
+# face 0.33; the generic head's landmarks squashed to a fifth of their depth 0.15, a plane's 0
+MIN_FACE_DEPTH = 0.2
 
 
 @dataclass(eq=False)
@@ -247,23 +258,69 @@ def _model_vertices(head: GenericHead, x: np.ndarray) -> np.ndarray:
 
 def fit_landmarks(landmarks: np.ndarray, head: GenericHead | None = None):
     """Stage 1 alone: (s, R, t, weights (K + E,), RMS landmark residual in the head's metres)
-    fitting the head's model to 478 landmark positions."""
+    fitting the head's model to 478 landmark positions.
+
+    With the rotation fixed, ``R^T p = s (mean + B x) + R^T t`` is linear in ``(s, y = s x, R^T
+    t)``: scale, weights and translation are solved together (alternating the scale with the
+    weights crawls along the valley where a bigger head trades for a smaller scale), then the
+    rotation again (Umeyama), a few times."""
+    from scipy.optimize import lsq_linear
+
     head = head or generic_head()
     p = np.asarray(landmarks, dtype=np.float64)[FACE_POINTS]
     mean, basis = _basis(head, matrix=head.landmark_matrix()[FACE_POINTS])
     k, e = head.n_identity, len(head.shape_names)
+    n = len(p)
     x = np.zeros(k + e)
-    c = np.ones(len(p))
+    c = np.ones(n)
+    s, r, t = _weighted_similarity(mean, p, c)
+    eye = np.tile(np.eye(3), (n, 1))
     for _ in range(LANDMARK_ITERATIONS):
+        q = p @ r  # R^T p, row by row
+        sw = np.repeat(np.sqrt(c), 3) / (s * LANDMARK_SIGMA)
+        a = np.column_stack([mean.reshape(-1), basis.reshape(-1, k + e), eye]) * sw[:, None]
+        prior = np.zeros((k + e, 1 + k + e + 3))
+        prior[:, 1:1 + k + e] = np.diag(np.r_[np.ones(k), np.full(e, np.sqrt(EXPRESSION_PRIOR))]) / s
+        qa, ra = np.linalg.qr(np.vstack([a, prior]))
+        rhs = qa.T @ np.r_[q.reshape(-1) * sw, np.zeros(k + e)]
+        lo = np.r_[1e-3 * s, np.full(k, -IDENTITY_BOUND * s), np.zeros(e), np.full(3, -np.inf)]
+        hi = np.r_[np.inf, np.full(k, IDENTITY_BOUND * s), np.full(e, s), np.full(3, np.inf)]
+        u = lsq_linear(ra, rhs, bounds=(lo, hi), method="bvls").x
+        x = u[1:1 + k + e] / u[0]
         cur = mean + basis @ x
         s, r, t = _weighted_similarity(cur, p, c)
-        q = (p - t) @ r / s
-        x = _solve_weights([(mean, basis, q, c, LANDMARK_SIGMA)], k, e)
-        c = _huber(np.linalg.norm(mean + basis @ x - q, axis=1))
+        c = _huber(np.linalg.norm(cur - (p - t) @ r / s, axis=1))
     cur = mean + basis @ x
-    s, r, t = _weighted_similarity(cur, p, c)
     res = np.linalg.norm(cur - (p - t) @ r / s, axis=1)
     return s, r, t, x, float(np.sqrt(np.mean(res ** 2)))
+
+
+def check_face(face, head: GenericHead | None = None) -> None:
+    """Refuse landmarks that do not look like a face's: flat (:data:`MIN_FACE_DEPTH`), or after
+    stage 1 the residual or the identity weights outside the bounds measured on real faces
+    (:data:`MAX_LANDMARK_ERROR`, :data:`MAX_IDENTITY_RMS`). Raises :class:`LandmarkError` ("no
+    face found in ...")."""
+    head = head or generic_head()
+    if head.landmarks_on(face.mesh) is not None:
+        return
+    from faceanim.errors import shown
+    from faceanim.face.landmarks import FACE_OVAL, NOSE_TIP
+
+    name = shown(face.name, tail=True)
+    local = face.frame.to_local(face.landmarks)
+    depth = float(local[NOSE_TIP, 2] - local[list(FACE_OVAL), 2].mean()) / face.frame.iod
+    if depth < MIN_FACE_DEPTH:
+        raise LandmarkError(f"no face found in '{name}': its landmarks are flat (the nose {depth:.2f} inter-ocular "
+                            f"distances in front of the face's outline; faces have at least {MIN_FACE_DEPTH}); "
+                            "if it is a face, give its landmarks with --landmarks")
+    _, _, _, x, res = face.landmark_fit
+    err = res / face_frame(head.landmarks()).iod
+    spread = float(np.sqrt(np.mean(x[:head.n_identity] ** 2)))
+    if err > MAX_LANDMARK_ERROR or spread > MAX_IDENTITY_RMS:
+        raise LandmarkError(
+            f"no face found in '{name}': its landmarks do not fit a head (residual {err:.2f} inter-ocular "
+            f"distances, identity {spread:.1f} standard deviations; faces stay under {MAX_LANDMARK_ERROR} and "
+            f"{MAX_IDENTITY_RMS}); if it is a face, give its landmarks with --landmarks")
 
 
 def register(face, head: GenericHead | None = None, nicp: bool = True) -> Registration:
@@ -271,38 +328,42 @@ def register(face, head: GenericHead | None = None, nicp: bool = True) -> Regist
     from faceanim.deform.base import one_blas_thread
 
     head = head or generic_head()
-    if head.landmarks_on(face.mesh) is not None:
-        return _same_topology(face, head)
+    with one_blas_thread():  # also the same result whatever the machine's threads
+        if head.landmarks_on(face.mesh) is not None:
+            return _same_topology(face, head)
+        return _register(face, head, nicp)
+
+
+def _register(face, head: GenericHead, nicp: bool) -> Registration:
     iod = face.frame.iod
     k, e = head.n_identity, len(head.shape_names)
-    with one_blas_thread():
-        s, r, t, x, lm_res = fit_landmarks(face.landmarks, head)
-        lm_err = lm_res * s / iod
-        # stage 2: model ICP on a subset of the head's skin
-        surface = _Surface(face)
-        skin = head.parts["skin"]
-        rows = skin[:: max(1, len(skin) // SURFACE_SAMPLES)]
-        d_mean, d_basis = _basis(head, rows)
-        l_mat = head.landmark_matrix()[FACE_POINTS]
-        l_mean, l_basis = _basis(head, matrix=l_mat)
-        p = face.landmarks[FACE_POINTS]
-        c_lm = np.ones(len(p))
-        for limit in MODEL_ITERATIONS:
-            model = _model_vertices(head, x)
-            normals = _normals(model, head.mesh.faces)[rows] @ r.T
-            pos, ok, _ = surface.pairs(s * model[rows] @ r.T + t, normals, limit * iod)
-            if ok.sum() >= 50:
-                # the similarity from landmarks and accepted pairs together
-                src = np.vstack([l_mean + l_basis @ x, (d_mean + d_basis @ x)[ok]])
-                dst = np.vstack([p, pos[ok]])
-                s, r, t = _weighted_similarity(src, dst, np.concatenate([c_lm, np.full(ok.sum(), 0.25)]))
-            blocks = [(l_mean, l_basis, (p - t) @ r / s, c_lm, LANDMARK_SIGMA)]
-            if ok.any():
-                blocks.append((d_mean[ok], d_basis[ok], (pos[ok] - t) @ r / s, np.full(ok.sum(), 0.25),
-                               SURFACE_SIGMA))
-            x = _solve_weights(blocks, k, e)
-        model = s * _model_vertices(head, x) @ r.T + t
-        vertices, surf_err, coverage = (_nicp(face, head, model, surface) if nicp else (model.copy(), np.nan, np.nan))
+    s, r, t, x, lm_res = face.landmark_fit if head is generic_head() else fit_landmarks(face.landmarks, head)
+    lm_err = lm_res * s / iod
+    # stage 2: model ICP on a subset of the head's skin
+    surface = _Surface(face)
+    skin = head.parts["skin"]
+    rows = skin[:: max(1, len(skin) // SURFACE_SAMPLES)]
+    d_mean, d_basis = _basis(head, rows)
+    l_mat = head.landmark_matrix()[FACE_POINTS]
+    l_mean, l_basis = _basis(head, matrix=l_mat)
+    p = face.landmarks[FACE_POINTS]
+    c_lm = np.ones(len(p))
+    for limit in MODEL_ITERATIONS:
+        model = _model_vertices(head, x)
+        normals = _normals(model, head.mesh.faces)[rows] @ r.T
+        pos, ok, _ = surface.pairs(s * model[rows] @ r.T + t, normals, limit * iod)
+        if ok.sum() >= 50:
+            # the similarity from landmarks and accepted pairs together
+            src = np.vstack([l_mean + l_basis @ x, (d_mean + d_basis @ x)[ok]])
+            dst = np.vstack([p, pos[ok]])
+            s, r, t = _weighted_similarity(src, dst, np.concatenate([c_lm, np.full(ok.sum(), 0.25)]))
+        blocks = [(l_mean, l_basis, (p - t) @ r / s, c_lm, LANDMARK_SIGMA)]
+        if ok.any():
+            blocks.append((d_mean[ok], d_basis[ok], (pos[ok] - t) @ r / s, np.full(ok.sum(), 0.25),
+                           SURFACE_SIGMA))
+        x = _solve_weights(blocks, k, e)
+    model = s * _model_vertices(head, x) @ r.T + t
+    vertices, surf_err, coverage = (_nicp(face, head, model, surface) if nicp else (model.copy(), np.nan, np.nan))
     return Registration(head, s, r, t, x[:k], x[k:], model, vertices, lm_err, surf_err, coverage)
 
 

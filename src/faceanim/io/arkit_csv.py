@@ -214,6 +214,9 @@ def write_arkit_csv(path: str | os.PathLike, weights: np.ndarray, fps: float, he
         raise FaceAnimError(f"an ARKit take needs (F, {len(ARKIT_NAMES)}) weights and (F, 3) head angles")
     if not (np.all(np.isfinite(w)) and np.all(np.isfinite(h)) and 0 < fps <= 1000):
         raise FaceAnimError("an ARKit take needs finite weights and head angles and a frame rate in (0, 1000]")
+    # as written (6 decimals), with no negative zeros: a weight of -1e-17 from a solver's last bit
+    # would print as -0.000000 on one machine and 0.000000 on another
+    w, h = np.round(w, 6) + 0.0, np.round(h, 6) + 0.0
     with atomic_output(path, "ARKit take") as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
         out = csv.writer(fh)
         out.writerow(["Timecode", "BlendShapeCount", *ARKIT_NAMES, *HEAD_NAMES, *EYE_NAMES])

@@ -1,10 +1,12 @@
-"""Apple ARKit's blendshapes (51 of the 52) on any face, for playing Live Link Face recordings.
+"""Apple ARKit's 52 blendshapes on any face, for ``faceanim rig`` and for playing Live Link Face
+recordings.
 
-The generic head (ICT FaceKit) carries artist-made shapes for 51 of ARKit's 52 blendshapes
-(``tongueOut`` has none). :func:`arkit_rig` moves them onto any face with the retargeting of
-:mod:`faceanim.rig.performance` (dense correspondence through the landmarks, motion vectors turned
-by the landmark spline's Jacobian: Chai et al. 2003, section 5, applied to named shapes, as Noh and
-Neumann's expression cloning does), and names them as Apple does (``eyeBlinkLeft`` ... ; Left and
+The generic head (ICT FaceKit) carries artist-made shapes for 51 of ARKit's 52 blendshapes, and a
+``tongueOut`` faceanim makes from the tongue's geometry (``scripts/build_generic_head.py``).
+:func:`arkit_rig` moves them onto any face with the retargeting of :mod:`faceanim.rig.performance`
+(the face's registration: dense correspondence part by part, motion carried by its similarity:
+Chai et al. 2003, section 5, applied to named shapes, as Noh and Neumann's expression cloning
+does), and names them as Apple does (``eyeBlinkLeft`` ... ; Left and
 Right are the subject's own sides). ICT splits ``browInnerUp`` and ``cheekPuff`` in halves: their
 sum is the ARKit shape.
 
@@ -32,8 +34,8 @@ def apple_name(live_link: str) -> str:
 
 
 def arkit_rig(face: Face) -> tuple[Rig, list[str]]:
-    """The face's ARKit rig: one control per ARKit blendshape the generic head has (51; Apple's
-    names, in Live Link Face's column order), and the names it lacks (``tongueOut``)."""
+    """The face's ARKit rig: one control per ARKit blendshape the generic head has (all 52; Apple's
+    names, in Live Link Face's column order), and the names it lacks (none with the shipped head)."""
     from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
 
     head = generic_head()
@@ -41,7 +43,8 @@ def arkit_rig(face: Face) -> tuple[Rig, list[str]]:
     ict = retarget(face, np.eye(len(names)), names, names=names)
     shapes, missing = {}, []
     for column in ARKIT_NAMES:
-        parts = [n for n in ict_name(column) if n in head.shape_names]
+        # ICT's own names, else the head's own shape by Apple's name (tongueOut, made by faceanim)
+        parts = [n for n in ict_name(column) or (apple_name(column),) if n in head.shape_names]
         if not parts:
             missing.append(apple_name(column))
             continue
@@ -146,5 +149,12 @@ def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.nda
         shapes[name] = shapes[name] + d
     for slit, name in (("eye_L", "eyeBlinkLeft"), ("eye_R", "eyeBlinkRight")):
         shapes[name] = shapes[name] + _lid_closure(face, shapes[name], slit, eyes)
-    skipped = {n: "no learned pattern: ICT FaceKit has no such shape" for n in missing}
+    skipped = {n: "no learned pattern: the generic head has no such shape" for n in missing}
+    tongue = shapes.get("tongueOut")
+    if tongue is not None and np.linalg.norm(tongue, axis=1).max() < STILL * face.frame.iod:
+        del shapes["tongueOut"]  # a mesh without a tongue inside its mouth (a scan, a mask)
+        skipped["tongueOut"] = "the mesh has no tongue: nothing inside its mouth corresponds to the generic head's"
     return shapes, skipped
+
+
+STILL = 1e-3  # a shape that moves no vertex further than this (inter-ocular distances) is not made
