@@ -8,8 +8,14 @@
    (placed by the same similarity on the landmarks).
 2. Real photos (``multiview-photos``): reprojection error of the landmarks in each view after
    the rebuild, and a contact sheet (photo | rebuilt head from the same camera).
+3. Own or another person's (``--people``): FaceWarehouse tester 1's neutral scan and ICT
+   identities sampled with N(0, 1) weights (seeds 300...: never used while building; rendered
+   untextured), each rebuilt from a front and a profile render, with and without the morphable
+   identity (``fit_head(identity=...)``). Each person's scan against the generic head, against
+   the head from the person's own renders, and against the heads from everybody else's: the
+   ratio own/other is how much closer a head from your photos is to you than to anybody else.
 
-Usage: ``python scripts/eval_photo_head.py ../shared/data [--poses 0,1,2] [--sheet out.png]``
+Usage: ``python scripts/eval_photo_head.py ../shared/data [--poses 0,1,2] [--sheet out.png] [--people 4]``
 """
 
 from __future__ import annotations
@@ -117,6 +123,54 @@ def known_truth(data: Path, poses: list[int], side_yaw: float) -> None:
           + " |")
 
 
+def people(data: Path, count: int, side_yaw: float) -> None:
+    """Section 3 of the module docstring."""
+    from faceanim.face.mesh import Mesh
+
+    head = generic_head()
+    prior, normals = prior_points(head)
+    truths = []
+    scan = data / "facewarehouse-tester1" / "pose_0.obj"
+    if scan.is_file():
+        truths.append(("FaceWarehouse 1", load_mesh(scan)))
+    ict = data / "ict-facekit"
+    modes = np.load(ict / "identity_modes.npz")["modes"][:, :24591].astype(np.float64) * 0.01
+    skin_faces = head.mesh.faces[np.isin(head.mesh.faces, head.parts["skin"]).all(axis=1)]
+    for seed in range(300, 300 + count):
+        w = np.random.default_rng(seed).standard_normal(len(modes))
+        v = head.mesh.vertices + np.einsum("k,kvd->vd", w, modes)
+        truths.append((f"ICT seed {seed}", Mesh(v, skin_faces, name=f"ict{seed}")))
+    faces, built = [], {True: [], False: []}
+    for name, mesh in truths:
+        face = Face(mesh, landmarks_478(mesh, detect_landmarks(mesh)))
+        faces.append(face)
+        views = load_views(("front", render(mesh, 0.0)), [("side", render(mesh, side_yaw))])
+        rec = reconstruct(views, prior, normals)
+        for ident in (True, False):
+            fh = fit_head(head, rec, "dffd", keep_expression=True, identity=ident)
+            built[ident].append(fh.vertices)
+    print(f"\nOwn or another person's head: surface error over the face (IOD), front + side {side_yaw:g} renders")
+    print("| person | generic head | own photos, identity | own, no identity | others', identity (mean) | "
+          "own/other, identity | own/other, no identity |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    ratios = {True: [], False: []}
+    gen_ratio = []
+    for i, ((name, _), face) in enumerate(zip(truths, faces)):
+        generic, _ = surface_error(face, head.mesh.vertices, head, head.landmarks())
+        row = {}
+        for ident in (True, False):
+            errs = [surface_error(face, v, head, head.landmarks(v))[0] for v in built[ident]]
+            own = errs[i]
+            other = float(np.mean([e for j, e in enumerate(errs) if j != i]))
+            row[ident] = (own, other)
+            ratios[ident].append(own / other)
+        gen_ratio.append(row[True][0] / generic)
+        print(f"| {name} | {generic:.4f} | {row[True][0]:.4f} | {row[False][0]:.4f} | {row[True][1]:.4f} | "
+              f"{row[True][0] / row[True][1]:.2f} | {row[False][0] / row[False][1]:.2f} |", flush=True)
+    print(f"| median | | | | | {np.median(ratios[True]):.2f} | {np.median(ratios[False]):.2f} |")
+    print(f"own photo head / generic head (identity): median {np.median(gen_ratio):.2f}")
+
+
 def real_photos(data: Path, sheet: Path | None) -> None:
     from faceanim.build.photo import head_from_photos
 
@@ -176,7 +230,10 @@ def main(argv=None) -> None:
     p.add_argument("--sheet", type=Path, help="write the real-photo contact sheet here (PNG)")
     p.add_argument("--skip-truth", action="store_true")
     p.add_argument("--skip-photos", action="store_true")
+    p.add_argument("--people", type=int, default=0, help="section 3 with this many sampled ICT identities")
     args = p.parse_args(argv)
+    if args.people:
+        people(args.data, args.people, args.side_yaw)
     if not args.skip_truth:
         known_truth(args.data, [int(k) for k in args.poses.split(",")], args.side_yaw)
     if not args.skip_photos:

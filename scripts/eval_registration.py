@@ -178,9 +178,11 @@ def main(argv=None) -> None:
                 for n in err:
                     print(f"    {n}: error {err[n]:.3f} cosine {cos[n]:.3f}")
             if args.sheet and len(sheet_rows) < 4:
-                truth = {n: carry(d, faces, tri, bary) for n, d in real.items()}
-                sheet_rows.append((face, truth, f"truth {mesh.name}"))
-                sheet_rows.append((face, auto.shapes, f"faceanim {mesh.name}"))
+                # shown upright: the renderer looks along +z with +y up
+                upright = Face(mesh.with_vertices(mesh.vertices @ AXES), face.landmarks @ AXES)
+                truth = {n: carry(d, faces, tri, bary) @ AXES for n, d in real.items()}
+                sheet_rows.append((upright, truth, f"truth {mesh.name}"))
+                sheet_rows.append((upright, {n: d @ AXES for n, d in auto.shapes.items()}, f"faceanim {mesh.name}"))
     e = np.array([r[0] for r in rows])
     c = np.array([r[1] for r in rows])
     b = np.array([r[2] for r in rows])

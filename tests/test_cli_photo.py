@@ -72,8 +72,8 @@ def test_rig_glb_carries_every_control(tmp_path, astronaut):
     gltf = pygltflib.GLTF2().load(str(out))
     names = set(gltf.meshes[0].extras["targetNames"])
     assert {"AU12", "AU12_L", "AU43", "joy", "viseme_01", "viseme_14", "fap_surprise",
-            "arkit_jawOpen", "arkit_eyeBlink_L", "arkit_mouthSmile_R"} <= names
-    assert len(names) == 95 + 53
+            "arkit_jawOpen", "arkit_eyeBlink_L", "arkit_mouthSmile_R", "arkit_tongueOut"} <= names
+    assert len(names) == 95 + 54  # the generic head's 53 ICT shapes and its tongueOut
 
 
 def test_png_shows_the_head_from_three_sides(tmp_path, astronaut):

@@ -500,14 +500,24 @@ def head_deformer(head) -> tuple:
     return dirichlet_ffd(np.vstack([sites, box]), v), len(sites)
 
 
-def fit_head(head, rec: Reconstruction, method: str = "dffd", keep_expression: bool = False) -> FittedHead:
-    """Deform the generic head onto the reconstructed points (see the module docstring, 3-4)."""
+def fit_head(head, rec: Reconstruction, method: str = "dffd", keep_expression: bool = False,
+             identity: bool = True) -> FittedHead:
+    """Deform the generic head onto the reconstructed points (see the module docstring, 3-4).
+
+    ``identity``: start from the person's own head shape, the morphable head's identity fitted to
+    the reconstructed landmarks (:func:`~faceanim.face.registration.fit_landmarks`, prior N(0, 1)),
+    so the shape between the feature points (nose, cheeks, jaw, forehead, the skull) is a real
+    person's of that build, not the generic head's; the warp then only takes up what is left."""
     g = head.mesh.vertices
     x = rec.points
+    if identity:
+        from faceanim.face.registration import fit_landmarks
+
+        weights = fit_landmarks(x[:478], head)[3][:head.n_identity]
+        g = head.identity(weights)
     expr = {} if keep_expression else fit_expression(head, x[:478])
     delta = sum((w * head.shape(n) for n, w in expr.items() if w > 0), np.zeros_like(g))
     ge = g + delta
-    prior, _ = prior_points(head)
     ex = extra_vertices(head)
     rows = control_rows()
     sites_e = np.vstack([head.landmarks(ge), ge[[ex[n] for n in EXTRA_POINTS]]])[rows]
@@ -521,19 +531,24 @@ def fit_head(head, rec: Reconstruction, method: str = "dffd", keep_expression: b
     elif method == "rbf":
         from faceanim.deform.rbf import landmark_tps
 
-        sites = prior[rows]
+        sites = np.vstack([head.landmarks(g), g[[ex[n] for n in EXTRA_POINTS]]])[rows]
         tps = landmark_tps(sites, sites + resid, "head control points", merge_repeated=True)
         warp = tps(g) - g
     else:
         raise FaceAnimError(f"unknown head fitting method '{shown(method)}'; choose dffd or rbf")
     neutral = apply_affine(a, g) + warp
     expressed = apply_affine(a, ge) + warp
+    g0 = head.mesh.vertices
     for idx, near in rigid_groups(head):
-        # each rigid part follows the skin around it (eyelids and socket; lips and mouth socket)
+        # each rigid part follows the skin around it (eyelids and socket; lips and mouth socket):
+        # the generic head's part (rigid: the identity modes also reshape it) placed where the
+        # person's is, then moved with its socket
+        s0, r0, t0 = similarity(g0[idx], g[idx])
+        part = s0 * g0[idx] @ r0.T + t0
         s, r, t = similarity(g[near], neutral[near])
-        neutral[idx] = s * g[idx] @ r.T + t
+        neutral[idx] = s * part @ r.T + t
         s, r, t = similarity(ge[near], expressed[near])
-        expressed[idx] = s * ge[idx] @ r.T + t
+        expressed[idx] = s * (part + (ge[idx] - g[idx])) @ r.T + t
     return FittedHead(neutral, expressed, expr, a)
 
 

@@ -23,8 +23,42 @@ def _meta_text(flag: str):
     return parse
 
 
+def _report_skipped(skipped: dict) -> None:
+    if skipped:
+        by_reason: dict[str, list[str]] = {}
+        for name, why in skipped.items():
+            by_reason.setdefault(why, []).append(name)
+        print("not made on this face: " + "; ".join(f"{', '.join(names)} ({why})" for why, names in by_reason.items()),
+              file=sys.stderr)
+
+
+def _cmd_avatar(args, sets, source: Path, out: Path) -> None:
+    """A whole avatar (skinned or several meshes) rigged in place: :mod:`faceanim.avatar`."""
+    from faceanim.avatar import rig_avatar
+
+    if out.suffix.lower() != source.suffix.lower():
+        raise CommandError(f"an avatar is written back as it came: '{shown(source.name, 60, tail=True)}' in, "
+                           f"a {source.suffix.lower()} out (give -o NAME{source.suffix.lower()})")
+    if args.landmarks:
+        raise CommandError("--landmarks is for a single face mesh; an avatar's head is found and its landmarks "
+                           "detected (choose the head with --head-mesh NAME)")
+    if args.compact:
+        raise CommandError("--compact is for a single face mesh; an avatar keeps its own accessors")
+    check_outputs(args.output)
+    forward = None if args.forward == "+z" and args.up == "+y" else args.forward
+    done = rig_avatar(source, out, sets, head_mesh=args.head_mesh, replace=args.replace, forward=forward, up=args.up)
+    rigged = " + ".join([done.head, *done.companions])
+    print(f"{len(done.written)} morph targets added to {rigged}")
+    if done.kept:
+        print(f"kept the avatar's own targets (--replace to overwrite): {', '.join(done.kept[:12])}"
+              + (" ..." if len(done.kept) > 12 else ""), file=sys.stderr)
+    _report_skipped(done.skipped)
+    report([out])
+
+
 def _cmd_rig(args) -> None:
     from faceanim.autorig import auto_rig, parse_sets, write_rigged
+    from faceanim.avatar import is_avatar
 
     sets = parse_sets(args.set)
     out = Path(args.output)
@@ -33,6 +67,11 @@ def _cmd_rig(args) -> None:
         raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
     if args.forward.lstrip("+-") == args.up.lstrip("+-"):
         raise CommandError(f"--forward {args.forward} and --up {args.up} lie on one axis: they must be different axes")
+    source = face_path(args)
+    if source and source != "default" and is_avatar(source):
+        return _cmd_avatar(args, sets, Path(source), out)
+    if args.head_mesh or args.replace:
+        raise CommandError("--head-mesh and --replace are for a whole avatar (.glb/.vrm with a skin or several meshes)")
     if args.compact and out.suffix.lower() == ".vrm":
         raise CommandError("--compact writes KHR_mesh_quantization, which VRM tools do not all read; drop it for a .vrm")
     check_outputs(args.output)
@@ -44,12 +83,7 @@ def _cmd_rig(args) -> None:
     if left_out:
         print("VRM presets left out: " + "; ".join(f"{p} ({why})" for p, why in left_out.items()), file=sys.stderr)
     print(f"{len(auto.shapes)} morph targets ({counts})")
-    if auto.skipped:
-        by_reason: dict[str, list[str]] = {}
-        for name, why in auto.skipped.items():
-            by_reason.setdefault(why, []).append(name)
-        print("not made on this face: " + "; ".join(f"{', '.join(names)} ({why})" for why, names in by_reason.items()),
-              file=sys.stderr)
+    _report_skipped(auto.skipped)
     report([written])
 
 
@@ -64,13 +98,20 @@ def register(sub) -> None:
                                    "are the subject's sides), visemes (the 15 Oculus visemes viseme_sil ... "
                                    "viseme_U), au (FACS action units with one-sided halves), emotions (joy ... "
                                    "disgust), fap (MPEG-4 FAPs by name). A .vrm also binds VRM 1.0's expression "
-                                   "presets (happy ... neutral) to them.")
+                                   "presets (happy ... neutral) to them. A whole avatar (a .glb/.vrm with a skin "
+                                   "or several meshes) is rigged in place: its head (and eyes, teeth) found, the "
+                                   "targets added to them, everything else written back unchanged.")
     add_face(p)
     _axes(p)
     p.add_argument("--set", default="all", metavar="SETS",
                    help=f"comma-separated sets to write: {','.join(RIG_SETS)} (default: all)")
     p.add_argument("--compact", action="store_true",
                    help="quantised .glb (KHR_mesh_quantization): smaller, for delivery")
+    p.add_argument("--head-mesh", metavar="NAME",
+                   help="a whole avatar: the mesh that is the head (default: found by name, else by geometry)")
+    p.add_argument("--replace", action="store_true",
+                   help="a whole avatar: replace its own targets (and VRM expressions) named as faceanim's "
+                        "(default: keep them)")
     p.add_argument("--title", type=_meta_text("--title"), help="the avatar's name in a .vrm (default: the mesh's)")
     p.add_argument("--author", type=_meta_text("--author"), default="unknown",
                    help="the author written in a .vrm's meta (default: unknown)")

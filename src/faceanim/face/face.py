@@ -173,6 +173,14 @@ class Face:
 
         return register(self)
 
+    @cached_property
+    def correspondence(self):
+        """Per vertex, the generic head's triangle and barycentric coordinates of its point
+        (:func:`~faceanim.face.registration.face_to_head` through :attr:`registration`)."""
+        from faceanim.face.registration import face_to_head
+
+        return face_to_head(self, self.registration)
+
     def view(self, margin: float = VIEW_MARGIN, yaw: float = VIEW_YAW, pitch: float = VIEW_PITCH) -> dict:
         """The camera faceanim shows a face with (keyword arguments of the renderer): framed on the
         face oval with a margin (a full head would render small), turned a little to show depth."""

@@ -115,6 +115,17 @@ class Registration:
         return self.head.identity(self.identity)
 
     @property
+    def size_scale(self) -> float:
+        """The face's size against the generic head's: the similarity's scale times the fitted
+        identity's landmark spread over the generic head's. A bigger fitted head with a smaller
+        scale and a smaller one with a larger scale fit the same landmarks equally well; this
+        product is the same for both."""
+        lm0 = self.head.landmarks()[FACE_POINTS]
+        lm1 = self.head.landmarks(self.identity_neutral)[FACE_POINTS]
+        spread = float(np.sqrt(np.sum((lm1 - lm1.mean(0)) ** 2) / np.sum((lm0 - lm0.mean(0)) ** 2)))
+        return self.scale * spread
+
+    @property
     def identity_distance(self) -> float:
         """The identity weights' root mean square (1 for a typical person under the prior)."""
         return float(np.sqrt(np.mean(self.identity ** 2)))

@@ -116,7 +116,8 @@ _RANGE_MAPS = ("rangeMapHorizontalInner", "rangeMapHorizontalOuter", "rangeMapVe
 DEFAULT_RANGE_MAP = {"inputMaxValue": 90.0, "outputScale": 1.0}
 
 
-def _overrides(preset: str) -> dict:
+def expression_overrides(preset: str) -> dict:
+    """A VRM 1.0 preset's overrides: an emotion blends the blink, a blink blends the gaze."""
     blink = "blend" if preset in EMOTIONS else "none"
     look = "blend" if preset in BLINKS else "none"
     return {"overrideBlink": blink, "overrideLookAt": look, "overrideMouth": "none"}
@@ -230,7 +231,7 @@ def _expressions(expressions: Mapping, names: list[str], node: int, custom: bool
                 raise FaceAnimError(f"VRM expression '{name}': the weight of '{shown(target)}' must be a number "
                                     f"in 0..1, not '{shown(weight)}'")
             out.append({"node": node, "index": index[target], "weight": float(weight)})
-        expr = {"isBinary": False, **_overrides(name)}
+        expr = {"isBinary": False, **expression_overrides(name)}
         if out:  # the schema wants at least one bind when the list is there
             expr["morphTargetBinds"] = out
         preset[name] = expr

@@ -86,6 +86,38 @@ def _look_shapes(face: Face, eyes: dict) -> dict[str, np.ndarray]:
     return out
 
 
+OPEN_EYE = 0.02  # eye pieces with more than this share of boundary edges are plates, not balls
+
+
+def registered_eyes(face: Face) -> dict:
+    """Eyes that are not round shells (an anime face's flat iris and eye-white discs): the face's
+    pieces off the skin whose corresponding points lie on the generic head's eyeballs, turned
+    about the registered eyeball's centre when they close into a ball, else (an open plate or
+    disc with the eye painted on: it has no centre of its own) about a centre one registered
+    eyeball radius behind them, so the iris travels as far as a person's eye turning by the
+    same angle. Side -> (vertex rows, centre); sides without any left out."""
+    head = generic_head()
+    tri, _ = face.correspondence
+    reg = face.registration
+    skin = np.asarray(face.skin, dtype=bool)
+    out = {}
+    for side in ("L", "R"):
+        part = head.parts[f"eyeball_{side}"]
+        on_eye = np.isin(head.mesh.faces[tri], part).all(axis=1) & ~skin
+        if on_eye.any():
+            rows = np.flatnonzero(on_eye)
+            ball = reg.vertices[part]
+            radius = float(np.linalg.norm(ball - ball.mean(axis=0), axis=1).mean())
+            f = face.mesh.faces[np.isin(face.mesh.faces, rows).all(axis=1)]
+            edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+            _, count = np.unique(edges, axis=0, return_counts=True)
+            closed = len(count) > 0 and np.mean(count == 1) < OPEN_EYE
+            centre = ball.mean(axis=0) if closed else \
+                face.mesh.vertices[rows].mean(axis=0) - radius * face.frame.rotation[2]
+            out[side] = (rows, centre)
+    return out
+
+
 LID_REACH = 0.6  # the closure correction fades out this far from the upper lid's margin (slit widths)
 
 
@@ -143,6 +175,7 @@ def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.nda
         from faceanim.rig.mpeg4 import FapRig
 
         eyes = FapRig.build(face).eyes
+    eyes = {**registered_eyes(face), **{s: e for s, e in eyes.items() if e is not None}}
     rig, missing = arkit_rig(face)
     shapes = {n: rig.blendshape(n) for n in rig.controls}
     for name, d in _look_shapes(face, eyes).items():

@@ -18,12 +18,14 @@ The four stages of the paper, with what we do at each:
    vertex.
 3. **Motion vector transfer** (eqs. 5-6): ``delta x_t = J delta x_s``. The paper's ``J`` is the
    Jacobian of the map between the two faces. Once the identity is fitted, that map is the
-   registration's similarity ``s R`` plus the person's own shape, and ICT's model adds an
-   expression's displacement to any identity unchanged: so ``J = s R``. Measured on remeshed
-   ICT identities (``scripts/eval_registration.py``, tuning seeds 0-1), ``s R`` gives a median
-   relative error of 0.15 against 0.17 for the landmark spline's Jacobian and 0.24 for the
-   registration's own local deformation gradient (which carries the person's shape into the
-   motion).
+   registration's similarity plus the person's own shape, and ICT's model adds an expression's
+   displacement to any identity unchanged: so ``J = s R``, with ``s`` the face's size against
+   the generic head (:attr:`Registration.size_scale <faceanim.face.registration.Registration>`:
+   the similarity's scale and the fitted identity's size together, which a fit can trade one
+   for the other). Measured on remeshed ICT identities (``scripts/eval_registration.py``, tuning
+   seeds 0-1): median relative error 0.153 with it, 0.161 with the similarity's scale alone,
+   0.17 with the landmark spline's Jacobian and 0.24 with the registration's own local
+   deformation gradient (which carries the person's shape into the motion).
 4. **Target motion synthesis** (eq. 7): the L target bases become the columns of a :class:`Rig`
    (one :class:`~faceanim.deform.base.LinearDeformer`, like every rig here); a frame is L weights.
 """
@@ -86,12 +88,16 @@ def retarget(face: Face, basis_curves: np.ndarray, curve_names, head: GenericHea
             raise FaceAnimError("region weights must be (V,) per region on the generic head, summing to 1")
         bases = np.concatenate([bases * w[None, :, None] for w in parts])
         names = names or [f"{r}_{i + 1:02d}" for r in regions for i in range(len(k))]
-    reg = face.registration if head is generic_head() else register(face, head)
-    tri, bary = face_to_head(face, reg)
+    if head is generic_head():
+        reg = face.registration
+        tri, bary = face.correspondence
+    else:
+        reg = register(face, head)
+        tri, bary = face_to_head(face, reg)
     corners = head.mesh.faces[tri]  # (Vt, 3)
     at = np.einsum("vc,lvcd->lvd", bary, bases[:, corners])  # delta x_s,i at each x_s
     moving = np.flatnonzero(np.abs(at).max(axis=(0, 2)) > 0)
-    jac = reg.scale * reg.rotation  # eq. 6 (module docstring: why the similarity's)
+    jac = reg.size_scale * reg.rotation  # eq. 6 (module docstring: why a similarity)
     target = np.zeros((len(bases), face.mesh.n_vertices, 3))
     target[:, moving] = at[:, moving] @ jac.T
     names = list(names or basis_names(len(bases)))

@@ -1,0 +1,109 @@
+"""An artist's avatar: faceanim's ARKit and viseme shapes against the ones the artist made.
+
+    python scripts/eval_avatar.py ../shared/data/avatars/vroid-sample.glb [--sheet docs/avatar_sheet.png]
+
+The avatar's head is found as ``faceanim rig`` finds it (:func:`faceanim.avatar.find_head`), its
+meshes welded into one face in the bind pose, landmarks detected and ARKit + visemes generated
+(nothing of the artist's targets is read for that: they are not part of the geometry). Then each
+generated shape is compared with the artist's target of the same name over the vertices the
+artist's moves (more than 5% of its largest motion): cosine, and the relative error at the best
+scale (the artist's shapes are often not at a human's full range), with the scale. Shapes the artist
+left empty (VRoid's ``jawOpen`` and ``tongueOut`` move nothing) are listed and left out.
+
+The avatar is used for measuring only; it is never copied into the project.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from faceanim.autorig import auto_rig
+from faceanim.avatar import avatar_face, find_head
+from faceanim.io.scene import read_scene
+
+MOVING = 0.05
+
+
+def compare(gen: np.ndarray, art: np.ndarray) -> tuple[float, float, float]:
+    """(cosine, best-scale relative error, best scale) over the artist's moving region."""
+    m = np.linalg.norm(art, axis=1)
+    region = m > MOVING * m.max()
+    g, a = gen[region].ravel(), art[region].ravel()
+    gg = float(g @ g)
+    scale = float(g @ a) / gg if gg > 0 else 0.0
+    cos = float(g @ a) / max(np.sqrt(gg) * np.linalg.norm(a), 1e-30)
+    return cos, float(np.linalg.norm(scale * g - a) / np.linalg.norm(a)), scale
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("avatar", type=Path)
+    ap.add_argument("--sheet", type=Path, help="write a picture sheet (artist's row, faceanim's row) here")
+    args = ap.parse_args(argv)
+    t = time.perf_counter()
+    scene = read_scene(args.avatar)
+    head, companions = find_head(scene)
+    meshes = [head, *companions]
+    face, parts = avatar_face(scene, meshes)
+    auto = auto_rig(face, ["arkit", "visemes"])
+    took = time.perf_counter() - t
+    # the artist's targets on the welded face (each welded vertex: its first merged copy)
+    art_rows = []
+    for mi, (offset, count, index) in zip(meshes, parts):
+        first = np.full(count, -1)
+        first[index[::-1]] = np.arange(len(index))[::-1]
+        art_rows.append((mi, first))
+    names = [n for n in auto.shapes if all(n in scene.meshes()[mi].target_names for mi in meshes[:1])]
+    artist = {}
+    for mi, first in art_rows:
+        targets = scene.targets(mi, names)
+        for n in names:
+            artist.setdefault(n, []).append(targets[n][first])
+    artist = {n: np.vstack(v) for n, v in artist.items()}
+    empty = [n for n, d in artist.items() if np.abs(d).max() == 0]
+    rows = {n: compare(auto.shapes[n], artist[n]) for n in names if n not in empty}
+    print(f"{scene.meshes()[head].name}: {face.mesh.n_vertices} welded vertices, rig {took:.1f} s "
+          f"(read, find, land, rig)")
+    print(f"the artist's shapes that move nothing (left out): {', '.join(empty) or 'none'}\n")
+    print("| set | shapes | median cosine | median best-scale error | median scale | worst cosine |")
+    print("|---|---:|---:|---:|---:|---|")
+    for label, keep in (("ARKit", lambda n: not n.startswith("viseme_")), ("visemes", lambda n: n.startswith("viseme_"))):
+        sel = {n: r for n, r in rows.items() if keep(n)}
+        if not sel:
+            continue
+        c = np.array([r[0] for r in sel.values()])
+        e = np.array([r[1] for r in sel.values()])
+        s = np.array([r[2] for r in sel.values()])
+        worst = sorted(sel.items(), key=lambda kv: kv[1][0])[:4]
+        print(f"| {label} | {len(sel)} | {np.median(c):.2f} | {np.median(e):.2f} | {np.median(s):.2f} | "
+              + ", ".join(f"{n} {r[0]:.2f}" for n, r in worst) + " |")
+    print()
+    for n, (c, e, s) in rows.items():
+        print(f"    {n}: cosine {c:.3f} best-scale error {e:.3f} scale {s:.2f}")
+    if args.sheet:
+        from faceanim.render import save_png
+        from faceanim.render.gl import OffscreenRenderer
+
+        shown = ["eyeBlinkLeft", "eyeBlinkRight", "jawOpen", "mouthSmileLeft", "browInnerUp", "mouthPucker",
+                 "noseSneerLeft", "mouthFunnel", "viseme_aa", "viseme_PP", "viseme_FF", "viseme_O"]
+        shown = [n for n in shown if n in auto.shapes]
+        size = 220
+        lines = []
+        for source in (artist, auto.shapes):
+            with OffscreenRenderer(face.mesh, size=(size, size), **face.view()) as r:
+                cells = []
+                for n in shown:
+                    d = source.get(n, np.zeros_like(face.mesh.vertices))
+                    cells += [r.render(face.mesh.vertices + d), np.full((size, 4, 3), 255, np.uint8)]
+            lines += [np.hstack(cells), np.full((4, len(shown) * (size + 4), 3), 255, np.uint8)]
+        args.sheet.parent.mkdir(parents=True, exist_ok=True)
+        save_png(args.sheet, np.vstack(lines[:-1]))
+        print(f"\nwrote {args.sheet}: top the artist's, bottom faceanim's; columns {', '.join(shown)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,218 @@
+"""Whole avatars rigged in place: a skinned multi-mesh glTF/VRM in, the same avatar out with its
+head meshes carrying faceanim's morph targets (``faceanim rig avatar.glb -o out.glb``).
+
+1. **The head.** Among the scene's meshes (:mod:`faceanim.io.scene`), the head is the mesh named
+   by ``--head-mesh``, else the one whose name says so (Ready Player Me's ``Wolf3D_Head``,
+   VRoid's ``Face``, any ``head``/``face``; two such meshes are refused, naming both), else the
+   highest mesh in the scene on whose render a face is found. Its companions are the smaller
+   meshes inside its box (eyes, teeth, lashes, brows: ``EyeLeft``, ``Wolf3D_Teeth`` ...): rigged
+   with it as one face.
+2. **One face.** Each mesh in its bind pose (world space, as a viewer shows the file), its
+   primitives welded where they touch (a face split into skin, lips and eyes by material is one
+   surface), the meshes side by side in one :class:`~faceanim.face.mesh.Mesh`; landmarks found on
+   its render (the head alone: no hair or body in the way), then :func:`~faceanim.autorig.auto_rig`.
+3. **Back in place.** Each shape split back to its mesh and primitive vertices and written by
+   :func:`~faceanim.io.scene.write_scene`: every node, skin, animation, material, texture and other
+   mesh unchanged, the head meshes gaining the targets. Targets the avatar already has by a name
+   faceanim makes are kept (reported) unless ``replace``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from faceanim.errors import FaceAnimError, MeshError, shown
+
+HEAD_NAMES = ("head", "face")  # a mesh whose lower-cased name contains one is a head candidate
+NOT_HEAD = ("hair", "headwear", "hat", "helmet", "eye", "teeth", "tooth", "tongue", "brow", "lash", "glass")
+COMPANION_MARGIN = 0.1  # a companion's box lies inside the head's, grown by this share of its size
+
+
+@dataclass
+class AvatarRig:
+    """What :func:`rig_avatar` did: the head and companion meshes (names), the targets written,
+    the avatar's own targets kept, and the face that was rigged (one Mesh over those meshes)."""
+
+    head: str
+    companions: list[str]
+    written: list[str]
+    kept: list[str] = field(default_factory=list)
+    skipped: dict = field(default_factory=dict)
+    face: object = None
+
+
+def _is_head_name(name: str) -> bool:
+    low = name.lower()
+    return any(h in low for h in HEAD_NAMES) and not any(n in low for n in NOT_HEAD)
+
+
+def find_head(scene, head_mesh: str | None = None) -> tuple[int, list[int]]:
+    """(the head mesh's index, the companion meshes' indices) of ``scene`` (module docstring, 1)."""
+    infos = [m for m in scene.meshes() if m.editable and m.bbox is not None and m.n_vertices > 0]
+    if not infos:
+        raise MeshError(f"'{shown(scene.path.name, tail=True)}' has no triangle mesh to rig")
+    if head_mesh is not None:
+        named = [m for m in infos if m.name == head_mesh]
+        if not named:
+            names = ", ".join(f"'{shown(m.name)}'" for m in infos[:8])
+            raise FaceAnimError(f"no mesh named '{shown(head_mesh)}' in the avatar; its meshes: {names}")
+        head = named[0]
+    else:
+        named = [m for m in infos if _is_head_name(m.name)]
+        if len(named) > 1:
+            both = " and ".join(f"'{shown(m.name)}'" for m in named[:2])
+            raise FaceAnimError(f"two meshes could be the head ({both}); choose one with --head-mesh NAME")
+        if named:
+            head = named[0]
+        else:
+            head = _head_by_geometry(scene, infos)
+    lo, hi = head.bbox
+    grow = COMPANION_MARGIN * (hi - lo)
+    companions = [m.index for m in infos if m.index != head.index and m.n_vertices < head.n_vertices
+                  and np.all(m.bbox[0] >= lo - grow) and np.all(m.bbox[1] <= hi + grow)
+                  and not any(n in m.name.lower() for n in ("hair", "glass", "hat"))]
+    return head.index, companions
+
+
+def _head_by_geometry(scene, infos) -> object:
+    """The highest mesh on whose render a face is found (meshes by the top of their box)."""
+    from faceanim.face.landmarks import detect_landmarks
+    from faceanim.errors import LandmarkError
+
+    for m in sorted(infos, key=lambda m: -m.bbox[1][1])[:4]:
+        mesh, _ = scene.mesh_geometry(m.index)
+        try:
+            detect_landmarks(mesh)
+        except LandmarkError:
+            continue
+        return m
+    raise FaceAnimError(f"no head found among the avatar's {len(infos)} meshes (no face on their renders); "
+                        "name it with --head-mesh NAME")
+
+
+def avatar_face(scene, meshes: list[int], forward: str = "+z", up: str = "+y"):
+    """(Face over the listed meshes side by side, per mesh (offset, welded count, weld index into
+    its merged vertices)): module docstring, 2."""
+    from faceanim.face.face import Face
+    from faceanim.face.mesh import Mesh
+    from faceanim.io.scene import weld
+
+    parts, vertices, faces, offset = [], [], [], 0
+    for mi in meshes:
+        merged, _ = scene.mesh_geometry(mi)
+        welded, index = weld(merged)
+        parts.append((offset, welded.n_vertices, index))
+        vertices.append(welded.vertices)
+        faces.append(welded.faces + offset)
+        offset += welded.n_vertices
+    name = scene.meshes()[meshes[0]].name
+    mesh = Mesh(np.vstack(vertices), np.vstack(faces), name=name or "head", source=str(scene.path))
+    from faceanim.face.face import landmarks_478
+    from faceanim.face.landmarks import detect_landmarks
+    from faceanim.face.registration import check_face
+
+    face = Face(mesh, landmarks_478(mesh, detect_landmarks(mesh, forward=forward, up=up)))
+    check_face(face)
+    return face, parts
+
+
+def rig_avatar(source, output, sets, head_mesh: str | None = None, replace: bool = False,
+               forward: str | None = None, up: str = "+y", progress=None) -> AvatarRig:
+    """Rig the head of the avatar file ``source`` in place and write it to ``output`` (module
+    docstring). ``forward``: where the face looks (default +z; a VRM 0.x avatar faces -z)."""
+    from faceanim.autorig import auto_rig
+    from faceanim.io.scene import read_scene, write_scene
+
+    scene = read_scene(source)
+    if forward is None:
+        forward = "-z" if "VRM" in (scene.document.extensions or {}) else "+z"
+    head, companions = find_head(scene, head_mesh)
+    meshes = [head, *companions]
+    face, parts = avatar_face(scene, meshes, forward, up)
+    auto = auto_rig(face, sets, progress=progress)
+    info = {m.index: m for m in scene.meshes()}
+    existing = set()
+    for mi in meshes:
+        existing |= set(info[mi].target_names)
+    kept = [] if replace else [n for n in auto.shapes if n in existing]
+    names = [n for n in auto.shapes if n not in kept]
+    additions = {}
+    for mi, (offset, count, index) in zip(meshes, parts):
+        additions[mi] = {n: auto.shapes[n][offset:offset + count][index] for n in names}
+    notes = {}
+    vrm = (scene.document.extensions or {}).get("VRMC_vrm")
+    if isinstance(vrm, dict):
+        notes = _bind_vrm(vrm, auto, {mi: info[mi] for mi in meshes}, names, replace)
+    elif "VRM" in (scene.document.extensions or {}):
+        notes["expressions"] = "VRM 0.x: the targets are added, its blend shape groups are left as they were"
+    write_scene(scene, output, additions, replace=replace)
+    return AvatarRig(info[head].name, [info[m].name for m in companions], names, kept, {**auto.skipped, **notes}, face)
+
+
+def _target_index(existing: tuple, added: list[str]) -> dict[str, int]:
+    """Each target's index in a mesh after :func:`~faceanim.io.scene.write_scene` adds ``added``
+    (a name it has keeps its place; new ones follow in order)."""
+    index = {n: k for k, n in enumerate(existing)}
+    for n in added:
+        if n not in index:
+            index[n] = len(index)
+    return index
+
+
+def _bind_vrm(vrm: dict, auto, meshes: dict, added: list[str], replace: bool) -> dict:
+    """VRM 1.0's expression presets and one custom expression per ARKit shape bound to the targets
+    (on every rigged mesh's node), in ``vrm`` (the file's VRMC_vrm, edited in place). A preset or
+    custom expression the avatar already binds is kept unless ``replace``. Returns notes."""
+    from faceanim.autorig import vrm_expressions
+    from faceanim.io.vrm import expression_overrides
+
+    bound, left_out = vrm_expressions(auto)
+    expressions = vrm.setdefault("expressions", {})
+    if not isinstance(expressions, dict):
+        return {"expressions": "the VRM's expressions are not an object: left as they were"}
+    preset = expressions.setdefault("preset", {})
+    custom = expressions.setdefault("custom", {})
+    kept = []
+
+    def binds(targets: dict) -> list:
+        out = []
+        for info in meshes.values():
+            if not info.nodes:
+                continue
+            index = _target_index(info.target_names, added)
+            out += [{"node": int(info.nodes[0]), "index": index[t], "weight": float(w)} for t, w in targets.items()
+                    if t in index]
+        return out
+
+    for table, items, is_preset in ((preset, bound, True),
+                                    (custom, {n: {n: 1.0} for n in auto.sets.get("arkit", [])}, False)):
+        for name, targets in items.items():
+            have = table.get(name)
+            if isinstance(have, dict) and have.get("morphTargetBinds") and not replace:
+                kept.append(name)
+                continue
+            entry = {"isBinary": False, **(expression_overrides(name) if is_preset else {})}
+            found = binds(targets)
+            if found:
+                entry["morphTargetBinds"] = found
+            table[name] = entry
+    notes = {p: why for p, why in left_out.items()}
+    if kept:
+        notes["VRM expressions kept"] = ", ".join(kept[:12]) + (" ..." if len(kept) > 12 else "")
+    return notes
+
+
+def is_avatar(path) -> bool:
+    """Whether ``path`` is a glTF/VRM scene to rig in place: skinned, or more than one mesh."""
+    from faceanim.io.gltf import glb_json
+
+    if Path(path).suffix.lower() not in (".glb", ".vrm"):
+        return False
+    doc = glb_json(path)
+    if not isinstance(doc, dict):
+        return False
+    meshes = doc.get("meshes") or []
+    return bool(doc.get("skins")) or len(meshes) > 1 or Path(path).suffix.lower() == ".vrm"
