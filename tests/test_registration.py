@@ -212,3 +212,28 @@ def test_every_command_that_takes_a_face_refuses_a_sphere(nonface_files, tmp_pat
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "no face found" in err[0], err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+@pytest.mark.skipif(not (ICT.parent / "facewarehouse-tester1").is_dir(), reason="FaceWarehouse scans are not here")
+def test_left_and_right_shapes_are_mirror_pairs_on_a_mirrored_mesh():
+    """A real scan and its mirror image (x negated, triangles flipped), each rigged on its own
+    (landmarks detected on each): every Left shape of the mirror is the mirror image of the
+    scan's Right shape, of equal strength (norms within 10%) and the same pattern (cosine over
+    0.9), and the other way round."""
+    from faceanim.autorig import auto_rig
+    from faceanim.face.face import landmarks_478
+    from faceanim.face.landmarks import detect_landmarks
+
+    face = Face.load(ICT.parent / "facewarehouse-tester1" / "pose_0.obj")
+    flip = np.array([-1.0, 1.0, 1.0])
+    mirror = Mesh(face.mesh.vertices * flip, face.mesh.faces[:, ::-1].copy(), name="mirror")
+    a = auto_rig(face, ["arkit"]).shapes
+    b = auto_rig(Face(mirror, landmarks_478(mirror, detect_landmarks(mirror))), ["arkit"]).shapes
+    pairs = [(n, n.replace("Left", "Right")) for n in a if n.endswith("Left")]
+    assert len(pairs) >= 20
+    for left, right in pairs:
+        for x, y in ((b[left], a[right]), (b[right], a[left])):
+            y = y * flip
+            nx, ny = np.linalg.norm(x), np.linalg.norm(y)
+            assert abs(nx - ny) <= 0.1 * max(nx, ny), (left, nx, ny)
+            assert float(np.sum(x * y)) / (nx * ny) > 0.9, left

@@ -211,7 +211,8 @@ def vrm_expressions(auto: AutoRig) -> tuple[dict[str, dict[str, float]], dict[st
                 out[preset] = dict(binds)
                 break
         else:
-            skipped[preset] = "none of its shapes is in the rig (add --set arkit or the set it needs)"
+            wanted = sorted({n for binds in options for n in binds})[:3]
+            skipped[preset] = f"none of its shapes is in the rig (it binds {', '.join(wanted)}: add the set that makes them)"
     return out, skipped
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from faceanim.errors import FaceAnimError, MeshError, shown
+from faceanim.errors import FaceAnimError, LandmarkError, MeshError, shown
 
 HEAD_NAMES = ("head", "face")  # a mesh whose lower-cased name contains one is a head candidate
 NOT_HEAD = ("hair", "headwear", "hat", "helmet", "eye", "teeth", "tooth", "tongue", "brow", "lash", "glass")
@@ -34,7 +34,8 @@ COMPANION_MARGIN = 0.1  # a companion's box lies inside the head's, grown by thi
 @dataclass
 class AvatarRig:
     """What :func:`rig_avatar` did: the head and companion meshes (names), the targets written,
-    the avatar's own targets kept, and the face that was rigged (one Mesh over those meshes)."""
+    the avatar's own targets kept, and the face that was rigged (one Mesh over those meshes);
+    ``replaced``: the written targets that replaced the avatar's own (``replace``)."""
 
     head: str
     companions: list[str]
@@ -42,6 +43,7 @@ class AvatarRig:
     kept: list[str] = field(default_factory=list)
     skipped: dict = field(default_factory=dict)
     face: object = None
+    replaced: list[str] = field(default_factory=list)
 
 
 def _is_head_name(name: str) -> bool:
@@ -49,8 +51,9 @@ def _is_head_name(name: str) -> bool:
     return any(h in low for h in HEAD_NAMES) and not any(n in low for n in NOT_HEAD)
 
 
-def find_head(scene, head_mesh: str | None = None) -> tuple[int, list[int]]:
-    """(the head mesh's index, the companion meshes' indices) of ``scene`` (module docstring, 1)."""
+def find_head(scene, head_mesh: str | None = None, forward: str = "+z", up: str = "+y") -> tuple[int, list[int]]:
+    """(the head mesh's index, the companion meshes' indices) of ``scene`` (module docstring, 1);
+    ``forward``/``up``: where a face looks on the renders that find a head by geometry."""
     infos = [m for m in scene.meshes() if m.editable and m.bbox is not None and m.n_vertices > 0]
     if not infos:
         raise MeshError(f"'{shown(scene.path.name, tail=True)}' has no triangle mesh to rig")
@@ -68,7 +71,7 @@ def find_head(scene, head_mesh: str | None = None) -> tuple[int, list[int]]:
         if named:
             head = named[0]
         else:
-            head = _head_by_geometry(scene, infos)
+            head = _head_by_geometry(scene, infos, forward, up)
     lo, hi = head.bbox
     grow = COMPANION_MARGIN * (hi - lo)
     companions = [m.index for m in infos if m.index != head.index and m.n_vertices < head.n_vertices
@@ -77,15 +80,14 @@ def find_head(scene, head_mesh: str | None = None) -> tuple[int, list[int]]:
     return head.index, companions
 
 
-def _head_by_geometry(scene, infos) -> object:
+def _head_by_geometry(scene, infos, forward: str = "+z", up: str = "+y") -> object:
     """The highest mesh on whose render a face is found (meshes by the top of their box)."""
     from faceanim.face.landmarks import detect_landmarks
-    from faceanim.errors import LandmarkError
 
     for m in sorted(infos, key=lambda m: -m.bbox[1][1])[:4]:
         mesh, _ = scene.mesh_geometry(m.index)
         try:
-            detect_landmarks(mesh)
+            detect_landmarks(mesh, forward=forward, up=up)
         except LandmarkError:
             continue
         return m
@@ -114,8 +116,14 @@ def avatar_face(scene, meshes: list[int], forward: str = "+z", up: str = "+y"):
     from faceanim.face.landmarks import detect_landmarks
     from faceanim.face.registration import check_face
 
-    face = Face(mesh, landmarks_478(mesh, detect_landmarks(mesh, forward=forward, up=up)))
-    check_face(face)
+    try:
+        face = Face(mesh, landmarks_478(mesh, detect_landmarks(mesh, forward=forward, up=up)))
+        check_face(face)
+    except LandmarkError as exc:  # its advice (--landmarks) is for a single face mesh, refused for an avatar
+        why = str(exc).split(";")[0].split(" (")[0]
+        raise LandmarkError(f"{why} (the head mesh '{shown(mesh.name)}' rendered looking along {forward} with {up} "
+                            "up); choose the head with --head-mesh NAME, or pass --forward/--up if the face points "
+                            "elsewhere") from None
     return face, parts
 
 
@@ -129,7 +137,7 @@ def rig_avatar(source, output, sets, head_mesh: str | None = None, replace: bool
     scene = read_scene(source)
     if forward is None:
         forward = "-z" if "VRM" in (scene.document.extensions or {}) else "+z"
-    head, companions = find_head(scene, head_mesh)
+    head, companions = find_head(scene, head_mesh, forward, up)
     meshes = [head, *companions]
     face, parts = avatar_face(scene, meshes, forward, up)
     auto = auto_rig(face, sets, progress=progress)
@@ -149,7 +157,8 @@ def rig_avatar(source, output, sets, head_mesh: str | None = None, replace: bool
     elif "VRM" in (scene.document.extensions or {}):
         notes["expressions"] = "VRM 0.x: the targets are added, its blend shape groups are left as they were"
     write_scene(scene, output, additions, replace=replace)
-    return AvatarRig(info[head].name, [info[m].name for m in companions], names, kept, {**auto.skipped, **notes}, face)
+    return AvatarRig(info[head].name, [info[m].name for m in companions], names, kept, {**auto.skipped, **notes}, face,
+                     [n for n in names if n in existing])
 
 
 def _target_index(existing: tuple, added: list[str]) -> dict[str, int]:

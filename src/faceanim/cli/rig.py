@@ -48,7 +48,8 @@ def _cmd_avatar(args, sets, source: Path, out: Path) -> None:
     forward = None if args.forward == "+z" and args.up == "+y" else args.forward
     done = rig_avatar(source, out, sets, head_mesh=args.head_mesh, replace=args.replace, forward=forward, up=args.up)
     rigged = " + ".join([done.head, *done.companions])
-    print(f"{len(done.written)} morph targets added to {rigged}")
+    replaced = f" ({len(done.replaced)} replacing its own)" if done.replaced else ""
+    print(f"{len(done.written)} morph targets written to {rigged}{replaced}")
     if done.kept:
         print(f"kept the avatar's own targets (--replace to overwrite): {', '.join(done.kept[:12])}"
               + (" ..." if len(done.kept) > 12 else ""), file=sys.stderr)
