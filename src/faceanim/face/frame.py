@@ -59,17 +59,21 @@ def face_frame(lm478: np.ndarray) -> FaceFrame:
     return FaceFrame(p[NOSE_TIP].copy(), np.stack([x, y, z]), iod, mouth)
 
 
-def similarity(src: np.ndarray, dst: np.ndarray, scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+def similarity(src: np.ndarray, dst: np.ndarray, scale: bool = True,
+               weights: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray]:
     """Least-squares ``dst ~ s * R @ src + t`` in any dimension (Umeyama 1991; Kabsch with
-    ``scale=False``, s = 1): returns (s, R, t), R a proper rotation."""
+    ``scale=False``, s = 1), each point pair counted with its ``weights`` (all 1 by default):
+    returns (s, R, t), R a proper rotation."""
     a, b = np.asarray(src, dtype=np.float64), np.asarray(dst, dtype=np.float64)
-    ms, md = a.mean(0), b.mean(0)
+    c = np.ones(len(a)) if weights is None else np.asarray(weights, dtype=np.float64)
+    c = c / c.sum()
+    ms, md = c @ a, c @ b
     a, b = a - ms, b - md
-    u, sv, vt = np.linalg.svd(b.T @ a)
+    u, sv, vt = np.linalg.svd((b * c[:, None]).T @ a)
     fix = np.ones(a.shape[1])
     fix[-1] = np.sign(np.linalg.det(u @ vt))
     r = (u * fix) @ vt
-    s = float((sv * fix).sum() / max((a ** 2).sum(), 1e-300)) if scale else 1.0
+    s = float((sv * fix).sum() / max(float(c @ (a ** 2).sum(1)), 1e-300)) if scale else 1.0
     return s, r, md - s * r @ ms
 
 

@@ -7,10 +7,11 @@ ARKit carry, the retargeting of a performance, the photo pipeline) asks the face
 
 1. **Landmark fit.** A similarity ``x_face = s R x_head + t`` and the weights of the generic
    head's identity modes ``w`` (ICT FaceKit's 100 PCA modes, prior ``w ~ N(0, I)``) and of its
-   53 expression shapes ``e`` (bounded to [0, 1], so a scan's smile is taken for a smile, not for
-   its shape) fitted to the face's 478 landmarks: alternately the similarity (Umeyama) and a
-   bounded linear least squares in ``(w, e)`` with the prior as extra rows, with Huber weights on
-   the landmarks (a contour point detected on an ear does not pull the head).
+   expression shapes ``e`` (bounded to [0, 1], so a scan's smile is taken for a smile, not for
+   its shape) fitted to the face's 468 face-mesh landmarks, with Huber weights (a contour point
+   detected on an ear does not pull the head): with the rotation fixed, scale, weights and
+   translation are one bounded linear least squares with the prior as extra rows
+   (:func:`fit_landmarks`), then the rotation again (Umeyama), a few times.
 2. **Model ICP.** The same linear fit with the closest points of a subset of the head's skin on
    the face's skin as data as well (pairs rejected by distance, by normals more than 60 degrees
    apart and on the face's boundary: holes, hair and clothes do not pull), then the similarity
@@ -22,7 +23,7 @@ ARKit carry, the retargeting of a performance, the photo pipeline) asks the face
    schedule of Amberg, Romdhani & Vetter 2007). Their method solves an affine map per vertex (12
    unknowns); after the morphable fit the remaining motion is small and smooth, so a
    displacement per vertex (3 unknowns, one sparse matrix for x, y and z, factorised once per
-   step) does the same work a quarter as large. The off-skin parts (eyeballs, teeth, gums) keep
+   closest-point round) does the same work a quarter as large. The off-skin parts (eyeballs, teeth, gums) keep
    the morphable fit, moved by the skin's displacement around them.
 
 The correspondence from the face to the head (:func:`face_to_head`) projects each face vertex
@@ -101,14 +102,6 @@ class Registration:
     surface_error: float
     coverage: float
 
-    def to_face(self, points: np.ndarray) -> np.ndarray:
-        """Points of the generic head's space in the face's mesh space."""
-        return self.scale * np.asarray(points) @ self.rotation.T + self.translation
-
-    def to_head(self, points: np.ndarray) -> np.ndarray:
-        """Points of the face's mesh space in the generic head's space."""
-        return (np.asarray(points) - self.translation) @ self.rotation / self.scale
-
     @property
     def identity_neutral(self) -> np.ndarray:
         """(Vh, 3) the fitted person's neutral head (no expression) in the generic head's space."""
@@ -124,11 +117,6 @@ class Registration:
         lm1 = self.head.landmarks(self.identity_neutral)[FACE_POINTS]
         spread = float(np.sqrt(np.sum((lm1 - lm1.mean(0)) ** 2) / np.sum((lm0 - lm0.mean(0)) ** 2)))
         return self.scale * spread
-
-    @property
-    def identity_distance(self) -> float:
-        """The identity weights' root mean square (1 for a typical person under the prior)."""
-        return float(np.sqrt(np.mean(self.identity ** 2)))
 
 
 def _basis(head: GenericHead, rows: np.ndarray | None = None, matrix: sp.spmatrix | None = None):
@@ -172,20 +160,6 @@ def _solve_weights(blocks, n_identity: int, n_expression: int) -> np.ndarray:
     return lsq_linear(a, b, bounds=(lo, hi), method="bvls" if a.shape[1] < 200 else "trf").x
 
 
-def _weighted_similarity(src, dst, c):
-    """Umeyama similarity ``dst ~ s R src + t`` with point weights ``c``."""
-    c = np.asarray(c, dtype=np.float64)
-    c = c / c.sum()
-    ms, md = c @ src, c @ dst
-    a, b = src - ms, dst - md
-    u, sv, vt = np.linalg.svd((b * c[:, None]).T @ a)
-    fix = np.ones(3)
-    fix[-1] = np.sign(np.linalg.det(u @ vt))
-    r = (u * fix) @ vt
-    s = float((sv * fix).sum() / max(float(c @ (a ** 2).sum(1)), 1e-300))
-    return s, r, md - s * r @ ms
-
-
 def _huber(residual: np.ndarray) -> np.ndarray:
     k = HUBER * max(float(np.median(residual)), 1e-12)
     return np.minimum(1.0, k / np.maximum(residual, 1e-300))
@@ -200,7 +174,9 @@ class _Surface:
         self.mesh = mesh
         self.triangles = np.flatnonzero(skin[mesh.faces].all(axis=1))
         if len(self.triangles) == 0:
-            raise LandmarkError(f"no face found in {mesh.name}: its landmarks lie on no surface")
+            from faceanim.errors import shown
+
+            raise LandmarkError(f"no face found in '{shown(mesh.name, tail=True)}': its landmarks lie on no skin surface")
         v, f = mesh.vertices, mesh.faces
         n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
         self.normals = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
@@ -284,7 +260,7 @@ def fit_landmarks(landmarks: np.ndarray, head: GenericHead | None = None):
     n = len(p)
     x = np.zeros(k + e)
     c = np.ones(n)
-    s, r, t = _weighted_similarity(mean, p, c)
+    s, r, t = similarity(mean, p, weights=c)
     eye = np.tile(np.eye(3), (n, 1))
     for _ in range(LANDMARK_ITERATIONS):
         q = p @ r  # R^T p, row by row
@@ -299,7 +275,7 @@ def fit_landmarks(landmarks: np.ndarray, head: GenericHead | None = None):
         u = lsq_linear(ra, rhs, bounds=(lo, hi), method="bvls").x
         x = u[1:1 + k + e] / u[0]
         cur = mean + basis @ x
-        s, r, t = _weighted_similarity(cur, p, c)
+        s, r, t = similarity(cur, p, weights=c)
         c = _huber(np.linalg.norm(cur - (p - t) @ r / s, axis=1))
     cur = mean + basis @ x
     res = np.linalg.norm(cur - (p - t) @ r / s, axis=1)
@@ -367,7 +343,7 @@ def _register(face, head: GenericHead, nicp: bool) -> Registration:
             # the similarity from landmarks and accepted pairs together
             src = np.vstack([l_mean + l_basis @ x, (d_mean + d_basis @ x)[ok]])
             dst = np.vstack([p, pos[ok]])
-            s, r, t = _weighted_similarity(src, dst, np.concatenate([c_lm, np.full(ok.sum(), 0.25)]))
+            s, r, t = similarity(src, dst, weights=np.concatenate([c_lm, np.full(ok.sum(), 0.25)]))
         blocks = [(l_mean, l_basis, (p - t) @ r / s, c_lm, LANDMARK_SIGMA)]
         if ok.any():
             blocks.append((d_mean[ok], d_basis[ok], (pos[ok] - t) @ r / s, np.full(ok.sum(), 0.25),
