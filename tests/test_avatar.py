@@ -10,34 +10,26 @@ the module under test.
 
 from __future__ import annotations
 
-import json
 import os
-import struct
 from pathlib import Path
 
 import numpy as np
 import pygltflib as g
 import pytest
 
+from faceanim.autorig import viseme_mixes
 from faceanim.cli import main
+from faceanim.io.arkit_csv import ARKIT_NAMES
 from faceanim.io.scene import read_scene
+from faceanim.rig.arkit import apple_name
+from test_scene import decode, glb_parts  # the GLB read by hand, independently of io/scene.py
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 VROID = DATA / "avatars" / "vroid-sample.glb"
 needs_vroid = pytest.mark.skipif(not VROID.is_file(), reason="../shared/data/avatars/vroid-sample.glb is not here")
 
-APPLE_52 = [
-    "eyeBlinkLeft", "eyeLookDownLeft", "eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft", "eyeSquintLeft",
-    "eyeWideLeft", "eyeBlinkRight", "eyeLookDownRight", "eyeLookInRight", "eyeLookOutRight", "eyeLookUpRight",
-    "eyeSquintRight", "eyeWideRight", "jawForward", "jawRight", "jawLeft", "jawOpen", "mouthClose", "mouthFunnel",
-    "mouthPucker", "mouthRight", "mouthLeft", "mouthSmileLeft", "mouthSmileRight", "mouthFrownLeft",
-    "mouthFrownRight", "mouthDimpleLeft", "mouthDimpleRight", "mouthStretchLeft", "mouthStretchRight",
-    "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper", "mouthPressLeft", "mouthPressRight",
-    "mouthLowerDownLeft", "mouthLowerDownRight", "mouthUpperUpLeft", "mouthUpperUpRight", "browDownLeft",
-    "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight", "cheekPuff", "cheekSquintLeft",
-    "cheekSquintRight", "noseSneerLeft", "noseSneerRight", "tongueOut"]
-OCULUS = ["viseme_" + v for v in ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "I", "O",
-                                  "U")]
+APPLE_52 = [apple_name(n) for n in ARKIT_NAMES]  # Apple's names in Live Link Face's order
+OCULUS = [f"viseme_{v['oculus']}" for v in viseme_mixes()]
 
 
 def run(args) -> int:
@@ -59,47 +51,6 @@ def refused(capsys, args, phrase: str, folder: Path, left: list[str]) -> str:
 
 
 # ====================================================================== GLB decoded by hand (the spec)
-_DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
-_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
-
-
-def glb_parts(path) -> tuple[dict, bytes]:
-    """The JSON and BIN chunks of a GLB file."""
-    data = Path(path).read_bytes()
-    assert data[:4] == b"glTF" and struct.unpack_from("<I", data, 8)[0] == len(data)
-    n = struct.unpack_from("<I", data, 12)[0]
-    assert data[16:20] == b"JSON"
-    doc, pos, binary = json.loads(data[20:20 + n]), 20 + n, b""
-    if pos < len(data):
-        m = struct.unpack_from("<I", data, pos)[0]
-        assert data[pos + 4:pos + 8] == b"BIN\0"
-        binary = data[pos + 8:pos + 8 + m]
-    return doc, binary
-
-
-def decode(doc: dict, binary: bytes, index: int) -> np.ndarray:
-    """Accessor ``index`` (dense, strided or sparse) as stored, (count, width)."""
-    a = doc["accessors"][index]
-    dtype, width = np.dtype(_DTYPES[a["componentType"]]), _WIDTH[a["type"]]
-    if "bufferView" in a:
-        view = doc["bufferViews"][a["bufferView"]]
-        stride = view.get("byteStride") or width * dtype.itemsize
-        start = view.get("byteOffset", 0) + a.get("byteOffset", 0)
-        rows = start + np.arange(a["count"])[:, None] * stride + np.arange(width * dtype.itemsize)[None, :]
-        out = np.frombuffer(binary, np.uint8)[rows].view(dtype)
-    else:
-        out = np.zeros((a["count"], width), dtype)
-    if "sparse" in a:
-        sp = a["sparse"]
-        iv, vv = doc["bufferViews"][sp["indices"]["bufferView"]], doc["bufferViews"][sp["values"]["bufferView"]]
-        idx = np.frombuffer(binary, _DTYPES[sp["indices"]["componentType"]], sp["count"],
-                            iv.get("byteOffset", 0) + sp["indices"].get("byteOffset", 0))
-        out = out.copy()
-        out[idx] = np.frombuffer(binary, dtype, sp["count"] * width,
-                                 vv.get("byteOffset", 0) + sp["values"].get("byteOffset", 0)).reshape(-1, width)
-    return out
-
-
 def mesh_accessors(doc: dict, mi: int) -> list[int]:
     """Every accessor a mesh's primitives use (attributes, indices, targets)."""
     out = []

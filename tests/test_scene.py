@@ -355,10 +355,10 @@ def test_write_adds_targets_and_keeps_everything_else(avatar, tmp_path):
         assert t1[:2] == t0 and len(t1) == 4  # the old targets, their accessors untouched
         assert {k: v for k, v in head1["primitives"][p].items() if k != "targets"} == \
             {k: v for k, v in head0["primitives"][p].items() if k != "targets"}
-        for k, given in ((2, jaw), (3, wide)):
+        for k, delta in ((2, jaw), (3, wide)):
             acc = d1["accessors"][t1[k]["POSITION"]]
             local = decode(*after, t1[k]["POSITION"]).astype(float)
-            np.testing.assert_allclose(local @ lin.T, given[rows], atol=1e-7)  # float32 precision
+            np.testing.assert_allclose(local @ lin.T, delta[rows], atol=1e-7)  # float32 precision
             np.testing.assert_array_equal(acc["min"], local.min(0))
             np.testing.assert_array_equal(acc["max"], local.max(0))
     quad_jaw = d1["accessors"][head1["primitives"][0]["targets"][2]["POSITION"]]
