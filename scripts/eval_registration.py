@@ -25,7 +25,6 @@ Seeds 0-1 were used while building the registration; report on others (the defau
 from __future__ import annotations
 
 import argparse
-import gzip
 import sys
 import time
 from pathlib import Path
@@ -36,21 +35,15 @@ from faceanim.autorig import auto_rig
 from faceanim.face.face import Face, landmarks_478
 from faceanim.face.landmarks import detect_landmarks
 from faceanim.face.mesh import Mesh
-from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
-from faceanim.rig.arkit import apple_name
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from eval_rig import ict_real, obj_vertices, sheet  # noqa: E402  (the ICT shapes read as eval_rig reads them)
 
 KEEP = 24591  # ICT's skin, gums and tongue, teeth and eyeballs (the generic head's parts)
 EYEBALLS = 21451  # ICT's eyeballs are its vertices from here to KEEP
 MOVING = 0.05
-CM = 1.0  # ICT's units are centimetres already
 # +z up, -y forward: x stays, y_new = -z_old, z_new = y_old
 AXES = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
-
-
-def obj_vertices(path: Path) -> np.ndarray:
-    opener = gzip.open if path.suffix == ".gz" else open
-    with opener(path, "rt") as fh:
-        return np.array([line.split()[1:4] for line in fh if line.startswith("v ")], dtype=np.float64)
 
 
 def ict_faces(path: Path) -> np.ndarray:
@@ -60,14 +53,10 @@ def ict_faces(path: Path) -> np.ndarray:
     return m.faces[(m.faces < KEEP).all(axis=1)]
 
 
-def true_shapes(ict: Path, neutral: np.ndarray) -> dict[str, np.ndarray]:
-    out = {}
-    for column in ARKIT_NAMES:
-        parts = ict_name(column)
-        files = [ict / f"{n}.obj" if (ict / f"{n}.obj").exists() else ict / f"{n}.obj.gz" for n in parts]
-        if files and all(f.exists() for f in files):
-            out[apple_name(column)] = sum(obj_vertices(f)[:KEEP] - neutral for f in files)
-    return out
+def true_shapes(ict: Path) -> dict[str, np.ndarray]:
+    """ICT's own ARKit shapes (``eval_rig.ict_real``) on the kept vertices."""
+    neutral = obj_vertices(ict / "generic_neutral_mesh.obj")
+    return {n: d[:KEEP] for n, d in ict_real(ict, neutral).items()}
 
 
 def remeshed(vertices: np.ndarray, faces: np.ndarray, count: int, seed: int):
@@ -142,7 +131,7 @@ def main(argv=None) -> None:
     neutral = obj_vertices(ict / "generic_neutral_mesh.obj")[:KEEP]
     faces = ict_faces(ict / "generic_neutral_mesh.obj")
     modes = np.load(ict / "identity_modes.npz")["modes"][:, :KEEP].astype(np.float64)
-    real = true_shapes(ict, neutral)
+    real = true_shapes(ict)
     eyeball_tris = np.flatnonzero((faces >= EYEBALLS).all(axis=1))
     rows, sheet_rows = [], []
     print("| identity | vertices | time s | shapes | median rel. error | median cosine | worst (error) | "
@@ -189,9 +178,6 @@ def main(argv=None) -> None:
     print(f"\nover all heads: median relative error {np.median(e):.3f} (worst head {e.max():.3f}), "
           f"median cosine {np.median(c):.3f} (worst head {c.min():.3f}), eyeball seen after a blink at most {b.max():.2f}")
     if args.sheet:
-        sys.path.insert(0, str(Path(__file__).parent))
-        from eval_rig import sheet
-
         sheet(args.sheet, sheet_rows)
 
 

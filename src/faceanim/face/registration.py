@@ -137,6 +137,27 @@ def _basis(head: GenericHead, rows: np.ndarray | None = None, matrix: sp.spmatri
     return mean, np.concatenate([ib, eb], axis=-1)
 
 
+@lru_cache(maxsize=2)
+def _landmark_model(head: GenericHead):
+    """:func:`_basis` at the head's face-mesh landmarks (computed once per head; read-only)."""
+    out = _basis(head, matrix=head.landmark_matrix()[FACE_POINTS])
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+@lru_cache(maxsize=2)
+def _skin_model(head: GenericHead):
+    """(rows, mean, basis): :func:`_basis` at :data:`SURFACE_SAMPLES` of the head's skin vertices,
+    evenly spread (computed once per head; read-only)."""
+    skin = head.parts["skin"]
+    rows = skin[:: max(1, len(skin) // SURFACE_SAMPLES)]
+    out = (rows, *_basis(head, rows))
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
 def _solve_weights(blocks, n_identity: int, n_expression: int) -> np.ndarray:
     """Weights (K + E,) minimising ``sum over blocks of |sqrt(c) (mean + basis x - target)|^2 /
     sigma^2 + |w|^2 + mu |e|^2``, ``w`` within +-:data:`IDENTITY_BOUND`, ``e`` in [0, 1]. Each
@@ -215,9 +236,7 @@ def _same_topology(face, head: GenericHead) -> Registration:
     """A face made from the generic head (the default face, ``faceanim photo``): the head is the
     face vertex for vertex; the similarity and identity are fitted to all its vertices."""
     mesh = face.mesh
-    skin = head.parts["skin"]
-    rows = skin[:: max(1, len(skin) // SURFACE_SAMPLES)]
-    mean, basis = _basis(head, rows)
+    rows, mean, basis = _skin_model(head)
     k, e = head.n_identity, len(head.shape_names)
     x = np.zeros(k + e)
     target = mesh.vertices[rows]
@@ -255,7 +274,7 @@ def fit_landmarks(landmarks: np.ndarray, head: GenericHead | None = None):
 
     head = head or generic_head()
     p = np.asarray(landmarks, dtype=np.float64)[FACE_POINTS]
-    mean, basis = _basis(head, matrix=head.landmark_matrix()[FACE_POINTS])
+    mean, basis = _landmark_model(head)
     k, e = head.n_identity, len(head.shape_names)
     n = len(p)
     x = np.zeros(k + e)
@@ -328,11 +347,8 @@ def _register(face, head: GenericHead, nicp: bool) -> Registration:
     lm_err = lm_res * s / iod
     # stage 2: model ICP on a subset of the head's skin
     surface = _Surface(face)
-    skin = head.parts["skin"]
-    rows = skin[:: max(1, len(skin) // SURFACE_SAMPLES)]
-    d_mean, d_basis = _basis(head, rows)
-    l_mat = head.landmark_matrix()[FACE_POINTS]
-    l_mean, l_basis = _basis(head, matrix=l_mat)
+    rows, d_mean, d_basis = _skin_model(head)
+    l_mean, l_basis = _landmark_model(head)
     p = face.landmarks[FACE_POINTS]
     c_lm = np.ones(len(p))
     for limit in MODEL_ITERATIONS:
