@@ -467,8 +467,11 @@ def test_animation_plays_with_its_sound_and_scrubs(face_page, face):
     p.page.click("#play")
     p.page.wait_for_function("viewer.clipTime() > 0.5")
     mid = p.shot()
-    assert _box_change(first, mid, chin) > 5  # the jaw opened
     t1 = p.js("viewer.clipTime()")
+    # the shot was drawn between 0.5 s and t1: before 1.5 s jawOpen is over 0.5 (sin^2). On a
+    # loaded machine the shot can come later, past the jaw's closing: then the scrub below judges
+    if t1 < 1.5:
+        assert _box_change(first, mid, chin) > 5  # the jaw opened
     p.page.wait_for_function(f"viewer.clipTime() > {t1}")
     assert p.js("viewer.playing()")
     # in step with the clock (and so with the sound)
@@ -491,6 +494,7 @@ def test_animation_plays_with_its_sound_and_scrubs(face_page, face):
     assert abs(p.js(f"viewer.weight('{JAW}')") - 1.0) < 1e-3
     assert p.page.locator(f'input[data-name="{JAW}"]').input_value() == "1"
     assert "1.00 / 8.00 s" in p.page.locator("#time").inner_text()
+    assert _box_change(first, p.shot(), chin) > 5  # and the face shows the open jaw
     p.page.locator("#scrub").fill("0")
     assert p.errors == []
 
