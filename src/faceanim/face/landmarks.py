@@ -462,21 +462,47 @@ def _cast_onto_surface(mesh, origins, dirs, rot) -> tuple[np.ndarray, np.ndarray
     normal = np.cross(fv[:, 1] - fv[:, 0], fv[:, 2] - fv[:, 0])
     hit &= (normal * dirs).sum(1) < 0
     if (~hit).any():
-        # rays through a gap: the front-most vertex among those whose projection lies within
-        # half an edge of the ray's closest one
-        from scipy.spatial import cKDTree
-
-        view = mesh.vertices @ rot.T
-        tree = cKDTree(view[:, :2])
-        o = origins[~hit] @ rot.T
-        dist, _ = tree.query(o[:, :2])
-        v = np.empty(len(o), dtype=np.int64)
-        for k, (point, d) in enumerate(zip(o[:, :2], dist)):
-            near = np.asarray(tree.query_ball_point(point, d + 0.5 * mesh.mean_edge_length))
-            v[k] = near[view[near, 2].argmax()]
+        v = _nearest_visible_vertex(mesh, origins[~hit], dirs[~hit], rot)
         pos[~hit] = mesh.vertices[v]
         tri[~hit] = mesh.vertex_triangle[v]
     return pos, tri
+
+
+# candidates tried per ray that went through a gap, nearest first, until one is visible
+SNAP_CANDIDATES = (32, 512, 8192)
+
+
+def _nearest_visible_vertex(mesh, origins, dirs, rot) -> np.ndarray:
+    """For each (parallel) ray through a gap of the surface: the vertex nearest to it in the image
+    that the camera sees from outside (its own ray meets nothing in front of it, on a front face). On a dense mesh the vertex
+    nearest in the image is as likely to lie on the back of the head as on the gap's rim, so
+    visibility is checked, not guessed from depth."""
+    from scipy.spatial import cKDTree
+
+    verts = mesh.vertices
+    tree = cKDTree((verts @ rot.T)[:, :2])
+    plane = (origins @ rot.T)[:, :2]
+    tol = 2.0 * mesh.mean_edge_length
+    out = np.empty(len(origins), dtype=np.int64)
+    for k in range(len(origins)):
+        d = dirs[k] / np.linalg.norm(dirs[k])
+        for count in SNAP_CANDIDATES:
+            _, idx = tree.query(plane[k], k=min(count, len(verts)))
+            idx = np.atleast_1d(idx)
+            t_v = (verts[idx] - origins[k]) @ d
+            starts = verts[idx] - t_v[:, None] * d  # each candidate's own ray, from the origins' plane
+            hit, pos, tri = mesh.cast_rays(starts, np.broadcast_to(d, starts.shape))
+            # seen, on the outside of the surface (through an eye hole the camera sees the
+            # inside of the back of the head: back faces)
+            fv = verts[mesh.faces[np.maximum(tri, 0)]]
+            outside = np.cross(fv[:, 1] - fv[:, 0], fv[:, 2] - fv[:, 0]) @ d < 0
+            seen = hit & (((pos - starts) @ d) >= t_v - tol) & outside
+            if seen.any():
+                out[k] = idx[int(np.argmax(seen))]
+                break
+        else:  # nothing visible near the ray: the front-most of the nearest vertices
+            out[k] = idx[int(np.argmax((verts[idx] @ rot.T)[:, 2]))]
+    return out
 
 
 def _face_frame(mesh, rot: np.ndarray) -> np.ndarray:

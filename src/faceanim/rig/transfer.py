@@ -168,6 +168,25 @@ def default_model() -> ActionUnitModel:
         resources.files("faceanim").joinpath("data", "au_displacements.json").read_text()))
 
 
+# a control point whose triangle lies outside the face's free region (under the chin of a dense
+# scan, where the front view's depth test calls the skin hidden) frees the skin within this many
+# inter-ocular distances around it (graph distance), so that it can move what it should
+POINT_REACH = 0.15
+
+
+def _free_around_points(face: Face, points: ControlPoints) -> np.ndarray:
+    """The face's free region, grown around control points it leaves with no free corner."""
+    from faceanim.face.regions import graph_distance
+
+    free = face.free_region
+    stuck = ~free[face.mesh.faces[points.triangles]].any(axis=1)
+    if not stuck.any():
+        return free
+    seeds = np.unique(face.mesh.faces[points.triangles[stuck]])
+    near = np.isfinite(graph_distance(face.mesh, seeds, limit=POINT_REACH * face.frame.iod))
+    return free | (near & face.skin)
+
+
 class ExpressionTransfer:
     """A target face rigged with control points: turns learned displacements into blendshapes.
 
@@ -185,7 +204,7 @@ class ExpressionTransfer:
         self.frame = face.frame
         self.method = method
         self.points: ControlPoints = place_control_points(target, self.lm, self.library, names, sides=face.slits)
-        self.free = face.free_region
+        self.free = _free_around_points(face, self.points)
         self.region = region_weights(target.vertices, self.lm, self.library, self.frame)
         self.scale = _normaliser(self.points.names, self.library, self.frame)
         self._regions = {r: np.array([self.library.control_points[n].region == r for n in self.points.names])
@@ -203,6 +222,9 @@ class ExpressionTransfer:
             pos, dist, tri = self.mesh.closest_points(self.lm[ids], on_skin[self.mesh.faces].all(axis=1))
             near = np.linalg.norm(pos[:, None] - self.points.positions[None], axis=2).min(1)
             ok = (dist < MAX_SNAP * self.frame.iod) & (near > MIN_SPACING * self.frame.iod)
+            # an anchor on fixed vertices only is held already (a dense mesh's free region ends
+            # farther from the hairline than a coarse one's triangles reach)
+            ok &= self.free[self.mesh.faces[np.asarray(tri)]].any(axis=1)
             tri, bary = np.asarray(tri)[ok], self.mesh.barycentric(pos[ok], np.asarray(tri)[ok])
             self._n_anchors = int(ok.sum())
             deformer = bind_surface(self.mesh.vertices, self.mesh.faces,
