@@ -175,6 +175,22 @@ class LinearDeformer:
         zero = np.zeros_like(self.rest)
         return self._evaluate(zero, off)
 
+    def weight_columns(self, start: int, stop: int) -> np.ndarray:
+        """(V, stop - start) the weights of handles ``start..stop`` over all vertices (zero where
+        nothing moves): the displacements of unit offsets at those handles, read off ``W``
+        without the product over every handle (a rig's blendshape is three such columns)."""
+        if not 0 <= start <= stop <= self.n_handles:
+            raise DeformError(f"handle columns {start}..{stop} are outside the {self.n_handles} handles")
+        if sp.issparse(self.weights):
+            full, _ = self._sparse_full_rows()
+            return full[:, start:stop].toarray()
+        cols = np.asarray(self.weights[:, start:stop], dtype=self.rest.dtype)
+        if self.rows is None:
+            return cols.copy()
+        out = np.zeros((self.n_vertices, stop - start), dtype=self.rest.dtype)
+        out[self.rows] = cols
+        return out
+
     def apply(self, offsets) -> np.ndarray:
         """Deformed positions ``rest + W @ offsets``: (V, 3) for (H, 3), (F, V, 3) for (F, H, 3)."""
         return self._evaluate(self.rest, self._check_offsets(offsets))

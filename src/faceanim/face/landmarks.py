@@ -470,38 +470,52 @@ def _cast_onto_surface(mesh, origins, dirs, rot) -> tuple[np.ndarray, np.ndarray
 
 # candidates tried per ray that went through a gap, nearest first, until one is visible
 SNAP_CANDIDATES = (32, 512, 8192)
+# a ray through a gap takes the front-most visible vertex this far (fraction of the mesh's size in
+# the view, at least half an edge) beyond the visible vertex nearest to it: the lid over an eye
+# hole rather than the socket wall behind its rim
+SNAP_WINDOW = 0.005
 
 
 def _nearest_visible_vertex(mesh, origins, dirs, rot) -> np.ndarray:
-    """For each (parallel) ray through a gap of the surface: the vertex nearest to it in the image
-    that the camera sees from outside (its own ray meets nothing in front of it, on a front face). On a dense mesh the vertex
-    nearest in the image is as likely to lie on the back of the head as on the gap's rim, so
-    visibility is checked, not guessed from depth."""
+    """For each (parallel) ray through a gap of the surface, a vertex at the gap's rim that the
+    camera sees from outside (its own ray meets nothing in front of it, on a front face): the
+    front-most of those within :data:`SNAP_WINDOW` of the nearest one in the image. On a dense
+    mesh the vertex nearest in the image is as likely to lie on the back of the head as on the
+    rim, so visibility is checked, not guessed from depth."""
     from scipy.spatial import cKDTree
 
     verts = mesh.vertices
-    tree = cKDTree((verts @ rot.T)[:, :2])
+    view = verts @ rot.T
+    tree = cKDTree(view[:, :2])
     plane = (origins @ rot.T)[:, :2]
+    span = float(np.linalg.norm(view[:, :2].max(0) - view[:, :2].min(0)))
+    window = max(0.5 * mesh.mean_edge_length, SNAP_WINDOW * span)
     tol = 2.0 * mesh.mean_edge_length
-    out = np.empty(len(origins), dtype=np.int64)
-    for k in range(len(origins)):
-        d = dirs[k] / np.linalg.norm(dirs[k])
-        for count in SNAP_CANDIDATES:
-            _, idx = tree.query(plane[k], k=min(count, len(verts)))
-            idx = np.atleast_1d(idx)
-            t_v = (verts[idx] - origins[k]) @ d
-            starts = verts[idx] - t_v[:, None] * d  # each candidate's own ray, from the origins' plane
-            hit, pos, tri = mesh.cast_rays(starts, np.broadcast_to(d, starts.shape))
-            # seen, on the outside of the surface (through an eye hole the camera sees the
-            # inside of the back of the head: back faces)
-            fv = verts[mesh.faces[np.maximum(tri, 0)]]
-            outside = np.cross(fv[:, 1] - fv[:, 0], fv[:, 2] - fv[:, 0]) @ d < 0
-            seen = hit & (((pos - starts) @ d) >= t_v - tol) & outside
-            if seen.any():
-                out[k] = idx[int(np.argmax(seen))]
-                break
-        else:  # nothing visible near the ray: the front-most of the nearest vertices
-            out[k] = idx[int(np.argmax((verts[idx] @ rot.T)[:, 2]))]
+    d = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    out = np.full(len(origins), -1, dtype=np.int64)
+    for count in SNAP_CANDIDATES:
+        todo = np.flatnonzero(out < 0)
+        if todo.size == 0:
+            break
+        count = min(count, len(verts))
+        dist, idx = tree.query(plane[todo], k=count)
+        dist, idx = dist.reshape(len(todo), count), idx.reshape(len(todo), count)
+        ray_d = np.repeat(d[todo], count, axis=0)
+        cand = verts[idx.ravel()]
+        t_v = np.einsum("ij,ij->i", cand - np.repeat(origins[todo], count, axis=0), ray_d)
+        starts = cand - t_v[:, None] * ray_d  # each candidate's own ray, from the origins' plane
+        hit, pos, tri = mesh.cast_rays(starts, ray_d)  # all pending rays' candidates at once
+        # seen, on the outside of the surface (through an eye hole the camera sees the inside
+        # of the back of the head: back faces)
+        fv = verts[mesh.faces[np.maximum(tri, 0)]]
+        outside = np.einsum("ij,ij->i", np.cross(fv[:, 1] - fv[:, 0], fv[:, 2] - fv[:, 0]), ray_d) < 0
+        seen = (hit & (np.einsum("ij,ij->i", pos - starts, ray_d) >= t_v - tol) & outside).reshape(len(todo), count)
+        for row, k in enumerate(todo):
+            if seen[row].any():
+                near = seen[row] & (dist[row] <= dist[row, int(np.argmax(seen[row]))] + window)
+                out[k] = idx[row][near][int(np.argmax(view[idx[row][near], 2]))]
+            elif count == len(verts) or count == SNAP_CANDIDATES[-1]:
+                out[k] = idx[row][int(np.argmax(view[idx[row], 2]))]  # nothing visible: the front-most
     return out
 
 

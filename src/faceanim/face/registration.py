@@ -162,6 +162,7 @@ def _solve_weights(blocks, n_identity: int, n_expression: int) -> np.ndarray:
     """Weights (K + E,) minimising ``sum over blocks of |sqrt(c) (mean + basis x - target)|^2 /
     sigma^2 + |w|^2 + mu |e|^2``, ``w`` within +-:data:`IDENTITY_BOUND`, ``e`` in [0, 1]. Each
     block: (mean (N, 3), basis (N, 3, P), target (N, 3), weights c (N,), sigma)."""
+    from scipy.linalg import cho_factor, solve_triangular
     from scipy.optimize import lsq_linear
 
     a_rows, b_rows = [], []
@@ -169,13 +170,13 @@ def _solve_weights(blocks, n_identity: int, n_expression: int) -> np.ndarray:
         sw = np.sqrt(np.asarray(c, dtype=np.float64))[:, None, None] / sigma
         a_rows.append((basis * sw).reshape(-1, basis.shape[-1]))
         b_rows.append(((target - mean) * sw[..., 0]).ravel())
-    prior = np.diag(np.concatenate([np.ones(n_identity), np.full(n_expression, np.sqrt(EXPRESSION_PRIOR))]))
-    a = np.vstack(a_rows + [prior])
-    b = np.concatenate(b_rows + [np.zeros(n_identity + n_expression)])
-    # the same problem on the (P, P) triangle of a QR factorisation: the solver's work no longer
-    # grows with the number of points
-    q, a = np.linalg.qr(a)
-    b = q.T @ b
+    # the same problem on a (P, P) triangle: the solver's work no longer grows with the number of
+    # points. The normal equations' Cholesky factor (the prior keeps them well conditioned) costs
+    # 0.01 s where a QR factorisation of the 10,000 x 154 rows took 0.25-0.35 s
+    gram = sum(a.T @ a for a in a_rows)
+    gram[np.diag_indices_from(gram)] += np.concatenate([np.ones(n_identity), np.full(n_expression, EXPRESSION_PRIOR)])
+    a = np.triu(cho_factor(gram, lower=False)[0])
+    b = solve_triangular(a, sum(ar.T @ br for ar, br in zip(a_rows, b_rows)), trans="T")
     lo = np.concatenate([np.full(n_identity, -IDENTITY_BOUND), np.zeros(n_expression)])
     hi = np.concatenate([np.full(n_identity, IDENTITY_BOUND), np.ones(n_expression)])
     return lsq_linear(a, b, bounds=(lo, hi), method="bvls" if a.shape[1] < 200 else "trf").x

@@ -308,9 +308,8 @@ class Rig:
         return self._column(self.index(name))
 
     def _column(self, k: int) -> np.ndarray:
-        off = np.zeros((self.deformer.n_handles, 3))
-        off[3 * k:3 * k + 3] = np.eye(3)
-        return self.deformer.displacements(off)
+        # unit offsets along x, y, z at the control's three handles: W's three columns
+        return self.deformer.weight_columns(3 * k, 3 * k + 3)
 
     def linearised(self, name: str) -> np.ndarray:
         """The exact derivative of the vertex positions by one control at the neutral pose (V, 3):
