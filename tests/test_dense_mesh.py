@@ -1,6 +1,6 @@
-"""A dense mesh rigs like the coarse one it was refined from.
+"""A dense mesh rigs like the coarse one it was refined from; one too large is refused first.
 
-The FaceWarehouse scan subdivided once (every triangle split in four: 11,558 -> 45,918 vertices,
+The FaceWarehouse scan subdivided once (every triangle split in four: 11,510 -> 45,822 vertices,
 the same surface, the original vertices first) is an oracle: its landmarks must be the scan's, and
 its shapes at the original vertices must be the scan's own. Before, rays through the eye holes
 snapped to a vertex on the back of the head (the nearest in the image on a dense mesh), and the
@@ -62,3 +62,37 @@ def test_a_subdivided_scan_rigs_like_the_scan(scans):
     assert len(rel) > 80 and np.median(list(rel.values())) < 0.12
     arkit = [v for k, v in rel.items() if not k.startswith("AU")]
     assert np.median(arkit) < 0.05
+
+
+def test_a_face_too_large_to_rig_is_refused_before_detection(monkeypatch, scans):
+    """Over the vertex limit: one MeshError naming the count and the way out, before any render
+    (detection is made to fail loudly if it is reached)."""
+    import faceanim.face.landmarks as landmarks
+    import faceanim.limits as limits
+    from faceanim.errors import MeshError
+
+    base, _ = scans
+    n = len(base.vertices)
+    monkeypatch.setattr(limits, "MAX_FACE_VERTICES", n - 1)
+
+    def reached(*a, **k):
+        raise AssertionError("landmark detection ran on a face over the limit")
+
+    monkeypatch.setattr(landmarks, "detect_landmarks", reached)
+    with pytest.raises(MeshError, match=rf"{n:,} vertices; faces of up to {n - 1:,} are rigged .* decimate"):
+        Face.load(DATA / "facewarehouse-tester1" / "pose_0.obj")
+    with pytest.raises(MeshError, match="decimate"):
+        Face(base, np.zeros((478, 3)))
+
+
+def test_an_obj_over_the_mesh_limit_stops_at_the_line_that_crosses_it(monkeypatch, tmp_path):
+    import faceanim.io.meshio as meshio
+    from faceanim.errors import MeshError
+
+    monkeypatch.setattr(meshio, "MAX_MESH_VERTICES", 3)
+    path = tmp_path / "four.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n")
+    with pytest.raises(MeshError, match="line 4: more than 3 vertices"):
+        meshio.load_mesh(path)
+    path.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert meshio.load_mesh(path).n_vertices == 3

@@ -25,6 +25,10 @@ MAX_VIDEO_PIXELS = 6e10  # frames x width x height of one video (512 x 512 for 2
 MAX_ACTIONS = 100_000  # actions on one timeline (visemes, blinks, expressions)
 MAX_NESTING = 8  # groups inside groups in a scene script
 MAX_TEXT = 10_000  # characters of text to speak
+MAX_FACE_VERTICES = 1_000_000  # vertices of a face to rig or animate: memory grows about 10 kB per
+#                                vertex (rig of every set: 0.9 GB at 46k, 2.3 GB at 183k, 4.2 GB at
+#                                400k; benchmarks/bench_rig_scale.py)
+MAX_MESH_VERTICES = 5_000_000  # vertices of any mesh read (an OBJ parses into Python lists first)
 MAX_SAMPLE_RATE = 192_000  # samples per second of audio in or out (the highest common studio rate;
 #                             an hour of it is 2.8 GB of float32 mono)
 

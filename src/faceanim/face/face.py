@@ -49,6 +49,17 @@ def landmarks_478(mesh: Mesh, landmarks: Landmarks) -> np.ndarray:
     return pos
 
 
+def check_face_size(mesh: Mesh) -> None:
+    """Refuse a face mesh too large to rig in a few GB (:data:`~faceanim.limits.MAX_FACE_VERTICES`)."""
+    from faceanim.errors import MeshError
+    from faceanim.limits import MAX_FACE_VERTICES
+
+    if mesh.n_vertices > MAX_FACE_VERTICES:
+        raise MeshError(f"face mesh '{mesh.name}' has {mesh.n_vertices:,} vertices; faces of up to "
+                        f"{MAX_FACE_VERTICES:,} are rigged (about 10 kB of memory per vertex): decimate it "
+                        "(e.g. Blender's Decimate modifier) and try again")
+
+
 @dataclass(eq=False)
 class Face:
     """A mesh and its 478 MediaPipe landmark positions (``landmarks`` (478, 3), on the surface).
@@ -62,6 +73,7 @@ class Face:
     landmarks: np.ndarray
 
     def __post_init__(self):
+        check_face_size(self.mesh)
         lm = np.asarray(self.landmarks, dtype=np.float64)
         if lm.shape != (478, 3) or not np.all(np.isfinite(lm)):
             raise LandmarkError(f"a face needs the 478 MediaPipe landmark positions, got shape {lm.shape}")
@@ -94,6 +106,7 @@ class Face:
             mesh = default_face()
         else:
             mesh = load_mesh(path)
+        check_face_size(mesh)  # before anything is rendered or bound
         if landmarks is not None:
             lms = Landmarks.load(landmarks).attached_to(mesh)
         else:

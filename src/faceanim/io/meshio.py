@@ -37,6 +37,7 @@ import numpy as np
 from faceanim.errors import FaceAnimError, MeshError, shown
 from faceanim.face.mesh import Mesh
 from faceanim.io.files import OutputError, atomic_output, check_output_path
+from faceanim.limits import MAX_MESH_VERTICES
 
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf")
 # coordinates beyond this (in any unit) are a broken file, and their squares would overflow later
@@ -68,6 +69,9 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
         raise MeshError(f"mesh '{path}' is too large to read into memory") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise MeshError(f"cannot read mesh '{path}': {getattr(exc, 'strerror', None) or 'read error'}") from None
+    if mesh.n_vertices > MAX_MESH_VERTICES:
+        raise MeshError(f"mesh '{path}' has {mesh.n_vertices:,} vertices; faceanim reads meshes of up to "
+                        f"{MAX_MESH_VERTICES:,}: decimate it and try again")
     big = np.abs(mesh.vertices) > MAX_COORDINATE
     if big.any():
         i = int(np.flatnonzero(big.any(1))[0])
@@ -129,6 +133,9 @@ def _load_obj(path: Path) -> Mesh:
                 continue
             key = parts[0]
             if key == "v":
+                if len(verts) >= MAX_MESH_VERTICES:
+                    raise _obj_error(path, line_no, f"more than {MAX_MESH_VERTICES:,} vertices; faceanim reads "
+                                                    "meshes up to that size: decimate it and try again")
                 verts.append(_floats(parts[1:], path, line_no, "vertex ('v x y z')", 3, 3))
                 v_line.append(line_no)
             elif key == "vt":
