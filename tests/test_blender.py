@@ -234,3 +234,41 @@ def test_perform_imports_with_the_head_turning(blender, tmp_path):
     turned = np.degrees(2 * np.arccos(np.clip(np.abs(f["rotation"][1][:, 3]), 0, 1))).max()
     assert turned > 1.0  # the head does turn in this clip, and the world positions follow it
     assert report["animation"]["world_max_abs"] < 1e-5
+
+
+AVATAR = DATA / "avatars" / "vroid-sample.glb"
+AVATAR_SCRIPT = ROOT / "scripts" / "check_avatar_blender.py"
+
+
+def avatar_report(blender, glb: Path, keys) -> dict:
+    out = glb.with_suffix(".avatar.json")
+    run = subprocess.run([blender, str(AVATAR_SCRIPT), str(glb), "--mesh", "Face", "--keys", ",".join(keys),
+                          "--json", str(out)], check=False, capture_output=True, text=True, timeout=900)
+    assert run.returncode == 0, run.stdout + run.stderr
+    return json.loads(out.read_text())
+
+
+@pytest.mark.skipif(not AVATAR.is_file(), reason="../shared/data/avatars/vroid-sample.glb is not here")
+def test_a_rigged_avatar_still_poses_and_each_new_key_moves_in_blender(blender, tmp_path):
+    """The VRoid avatar rigged in place (``faceanim rig avatar.glb --replace``), imported by
+    Blender next to the original: the same mesh objects with the same vertex counts, the face still
+    deformed by the armature and moving with its head bone exactly as the original's does (same
+    bone, same distances), every original shape key kept, and each new key moving the evaluated
+    face by what its shape key stores (more than a millimetre)."""
+    from faceanim.cli import main
+
+    keys = ["eyeBlinkLeft", "eyeBlinkRight", "jawOpen", "mouthFunnel", "tongueOut", "browInnerUp", "AU12", "viseme_aa"]
+    glb = tmp_path / "rigged.glb"
+    assert main(["rig", str(AVATAR), "--replace", "-o", str(glb)]) in (0, None)
+    before = avatar_report(blender, AVATAR, keys)
+    after = avatar_report(blender, glb, keys)
+    assert {k: v["vertices"] for k, v in after["meshes"].items()} == {k: v["vertices"] for k, v in before["meshes"].items()}
+    face_before, face_after = before["meshes"][before["head_object"]], after["meshes"][after["head_object"]]
+    assert face_after["armature"] and set(face_before["shape_keys"]) <= set(face_after["shape_keys"])
+    assert after["pose"]["bone"] == before["pose"]["bone"] and after["pose"]["max"] > 0.02
+    assert after["pose"]["max"] == pytest.approx(before["pose"]["max"], abs=1e-6)
+    assert after["pose"]["median"] == pytest.approx(before["pose"]["median"], abs=1e-6)
+    for name in keys:
+        r = after["keys"][name]
+        assert r is not None, name
+        assert r["stored"] > 1e-3 and r["moved"] == pytest.approx(r["stored"], abs=1e-6), name
