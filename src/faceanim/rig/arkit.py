@@ -19,6 +19,8 @@ play`` both use it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from faceanim.face.face import Face
@@ -118,53 +120,148 @@ def registered_eyes(face: Face) -> dict:
     return out
 
 
-LID_REACH = 0.6  # the closure correction fades out this far from the upper lid's margin (slit widths)
+LID_REACH = 0.6  # the closure correction fades out this far above the upper lid's margin (slit widths)
+LID_STRETCH = 1.2  # the upper lid's band that stretches is at least this many times the largest gap tall
+LID_MEET = 0.75  # the share of the gap the upper lid travels; the lower lid rises the rest
+OPENING_COLUMNS = 24  # columns across an eye in which its opening is found
+OPENING_ROWS = 120  # rays per column, over +-0.8 slit widths about the eye's centre
+
+
+@dataclass
+class EyeOpening:
+    """Where a face's eye is open, seen from the front (:func:`eye_opening`), per column across
+    the eye: ``x`` (along the slit, face frame), the upper and lower lid margins (3D points on the
+    skin just above and below the opening, their triangles) and the opening's height (mesh units,
+    0 where the column is shut)."""
+
+    x: np.ndarray
+    upper: np.ndarray
+    upper_tri: np.ndarray
+    lower: np.ndarray
+    lower_tri: np.ndarray
+    height: np.ndarray
+
+    @property
+    def area(self) -> float:
+        """The opening's area in the front view (mesh units squared)."""
+        return float(np.sum(self.height) * (self.x[1] - self.x[0])) if len(self.x) > 1 else 0.0
+
+
+def eye_opening(face: Face, slit: str, eyes: dict, vertices: np.ndarray | None = None) -> EyeOpening | None:
+    """The opening of one eye as the front view shows it: rays along the face's -z over the eye,
+    each classed by the first thing it meets (the skin from outside; an eye piece, the inside of
+    the head or nothing: the opening; anything else, such as lashes or an eyeline plate: the lid).
+    In each column the opening is the run of opening rays nearest the eye's centre; its margins
+    are the skin met first above and below it. MediaPipe's lid points cannot serve here: on an
+    anime face they sit inside the painted eye, a third of the way to the real lids. ``vertices``:
+    the face deformed (a blink, to see whether it closes). None when the front view shows no
+    opening (a closed eye, painted eyes)."""
+    from faceanim.face.landmarks import EYE_LEFT, EYE_RIGHT
+
+    mesh = face.mesh if vertices is None else face.mesh.with_vertices(vertices)
+    fr = face.frame
+    lm = fr.to_local(face.landmarks)
+    contour = lm[list(EYE_LEFT if slit == "eye_L" else EYE_RIGHT)]
+    width = float(np.ptp(contour[:, 0]))
+    centre = contour.mean(axis=0)
+    # a little wider than MediaPipe's contour (on an anime face it lies inside the painted eye)
+    xs = centre[0] + np.linspace(-0.65, 0.65, OPENING_COLUMNS) * width
+    ys = centre[1] + np.linspace(-0.8, 0.8, OPENING_ROWS) * width
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")  # (columns, rows)
+    local = fr.to_local(mesh.vertices)
+    start = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, local[:, 2].max() + width)])
+    origins = start @ fr.rotation + fr.origin
+    dirs = np.broadcast_to(-fr.rotation[2], origins.shape)
+    hit, pos, tri = mesh.cast_rays(origins, dirs)
+    skin = np.asarray(face.skin, dtype=bool)
+    eye_rows = np.zeros(mesh.n_vertices, bool)
+    for part in (eyes or {}).values():
+        if part is not None:
+            eye_rows[part[0]] = True
+    corners = mesh.faces[np.maximum(tri, 0)]
+    fv = mesh.vertices[corners]
+    front = np.einsum("ij,ij->i", np.cross(fv[:, 1] - fv[:, 0], fv[:, 2] - fv[:, 0]), dirs) < 0
+    on_skin = hit & front & skin[corners].all(axis=1)
+    opening = ~hit | ~front | eye_rows[corners].any(axis=1)
+    on_skin, opening = on_skin.reshape(gx.shape), opening.reshape(gx.shape)
+    pos, tri = pos.reshape(gx.shape + (3,)), tri.reshape(gx.shape)
+    mid = int(np.argmin(np.abs(ys - centre[1])))
+    out = {k: [] for k in ("x", "upper", "upper_tri", "lower", "lower_tri", "height")}
+    for j in range(len(xs)):
+        rows = np.flatnonzero(opening[j])
+        if rows.size:
+            # the run of opening rays nearest the centre row
+            runs = np.split(rows, np.flatnonzero(np.diff(rows) > 1) + 1)
+            run = min(runs, key=lambda r: 0 if r[0] <= mid <= r[-1] else min(abs(r[0] - mid), abs(r[-1] - mid)))
+            below = np.flatnonzero(on_skin[j, :run[0]])
+            above = np.flatnonzero(on_skin[j, run[-1] + 1:]) + run[-1] + 1
+            if below.size and above.size and abs(run[0] + run[-1] - 2 * mid) < OPENING_ROWS // 2:
+                lo, up = below[-1], above[0]
+                out["x"].append(xs[j])
+                out["upper"].append(pos[j, up])
+                out["upper_tri"].append(tri[j, up])
+                out["lower"].append(pos[j, lo])
+                out["lower_tri"].append(tri[j, lo])
+                out["height"].append((run[-1] - run[0] + 1) * (ys[1] - ys[0]))
+                continue
+        out["x"].append(xs[j])
+        for k in ("upper", "lower"):
+            out[k].append(np.full(3, np.nan))
+            out[f"{k}_tri"].append(-1)
+        out["height"].append(0.0)
+    res = EyeOpening(*(np.asarray(out[k]) for k in ("x", "upper", "upper_tri", "lower", "lower_tri", "height")))
+    return res if res.height.any() else None
 
 
 def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.ndarray:
     """The correction that makes a carried blink close the eye: ICT's lids travel ICT's eye
-    opening, which on another face leaves a slit (40% of it on the default face) or overshoots.
-    Each upper-margin point moves by what still parts it from the lower margin (at the same place
-    along the slit, both as the blink leaves them); the upper lid's skin (and what rides on it,
-    such as lashes, not the eyeballs) follows by inverse-distance weights, fading to nothing
-    :data:`LID_REACH` slit widths from the margin."""
-    from scipy.spatial import cKDTree
+    opening, which on another face leaves a slit (40% of it on the default face; half an anime
+    eye). The opening is found in the front view (:func:`eye_opening`), at rest and as the carried
+    blink leaves it; in each column where the lids still part, the upper lid comes down
+    :data:`LID_MEET` of the gap and the lower lid rises the rest, so they meet on a line between
+    their arcs (meeting on the lower arc draws the closed lid into a sagging V). Each lid (the skin on its side of the eye's middle and what rides on it, such as lashes
+    or an eyeline plate; not the eyes) moves by its column's share, interpolated across the eye:
+    fully up to its margin, fading to nothing above (below) it over :data:`LID_REACH` slit widths
+    (the upper lid) or a third of that (the lower): a sheet drawn over the eye, no lumps. The
+    lids move down the face only, at the depth the carried blink leaves them: the whole 3D gap
+    would draw an overhanging anime lid back into the head."""
+    from faceanim.face.regions import smoothstep
 
-    from faceanim.face.landmarks import SLITS
-    from faceanim.face.regions import slit_sides, smoothstep
-
-    v = face.mesh.vertices
-    lm = face.landmarks
-    skin = np.flatnonzero(face.skin)
-    tree = cKDTree(v[skin])
-    spec = SLITS[slit]
-    upper = skin[tree.query(lm[list(spec["upper"])])[1]]
-    lower = skin[tree.query(lm[list(spec["lower"])])[1]]
-    a, b = lm[list(spec["corners"])]
-    axis = (b - a) / np.linalg.norm(b - a)
-    width = float(np.linalg.norm(b - a))
-    # the lower margin as a curve along the slit (through the corners, where the lids meet)
-    lower = np.concatenate([lower, skin[tree.query(lm[list(spec["corners"])])[1]]])
-    t_low = (v[lower] - a) @ axis
-    p_low = v[lower] + blink[lower]
-    order = np.argsort(t_low)
-    t_up = (v[upper] - a) @ axis
-    target = np.column_stack([np.interp(t_up, t_low[order], p_low[order, k]) for k in range(3)])
-    gaps = target - (v[upper] + blink[upper])
-    # who follows: the upper lid's skin near the margin, and off-skin pieces riding on it
-    movable = np.ones(len(v), bool)
-    movable[skin[slit_sides(face.mesh, lm)[slit][skin]]] = False  # the lower lid stays as carried,
-    movable[lower] = False  # its margin and the corners too (the lids meet there)
+    op = eye_opening(face, slit, eyes)
+    if op is None:
+        return np.zeros_like(blink)
+    mesh = face.mesh
+    fr = face.frame
+    # what the carried blink leaves open, column by column, in the front view
+    left = eye_opening(face, slit, eyes, mesh.vertices + blink)
+    if left is None:
+        return np.zeros_like(blink)
+    open_ = op.height > 0
+    gap = np.where(open_, left.height, 0.0)  # how far the lids still part, down the face
+    up_y, lo_y = (fr.to_local(m[open_])[:, 1] for m in (op.upper, op.lower))
+    x_open = op.x[open_]
+    width = float(op.x[-1] - op.x[0])
+    local = fr.to_local(mesh.vertices)
+    xv, yv = local[:, 0], local[:, 1]
+    # per vertex: its column's gap (0 past the corners), margins and middle, interpolated across
+    g = np.interp(xv, op.x, gap, left=0.0, right=0.0)
+    upper_margin = np.interp(xv, x_open, up_y)
+    lower_margin = np.interp(xv, x_open, lo_y)
+    middle = 0.5 * (upper_margin + lower_margin)
+    near = (xv > x_open.min()) & (xv < x_open.max())
+    # only what is near the eye's surface (not the back of the head behind it), not the eyes
+    depth = np.interp(xv, x_open, fr.to_local(op.upper[open_])[:, 2])
+    near &= local[:, 2] > depth - 0.5 * width
     for part in (eyes or {}).values():
         if part is not None:
-            movable[part[0]] = False
-    d = np.linalg.norm(v[:, None] - v[upper][None], axis=2)  # (V, 5): fine for 5 margin points
-    fade = smoothstep(1.0 - d.min(axis=1) / (LID_REACH * width)) * movable
-    near = np.flatnonzero(fade > 0)
-    w = 1.0 / (d[near] ** 2 + (0.02 * width) ** 2)
-    out = np.zeros_like(v)
-    out[near] = fade[near, None] * (w @ gaps) / w.sum(axis=1, keepdims=True)
-    return out
+            near[part[0]] = False
+    reach = max(LID_REACH * width, LID_STRETCH * float(gap.max()))
+    up = near & (yv > middle)
+    lo = near & (yv <= middle)
+    fade_up = np.where(yv <= upper_margin, 1.0, smoothstep(1.0 - (yv - upper_margin) / reach))
+    fade_lo = np.where(yv >= lower_margin, 1.0, smoothstep(1.0 - (lower_margin - yv) / (reach / 3)))
+    dy = np.where(up, -LID_MEET * g * fade_up, 0.0) + np.where(lo, (1.0 - LID_MEET) * g * fade_lo, 0.0)
+    return dy[:, None] * fr.rotation[1]
 
 
 def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
