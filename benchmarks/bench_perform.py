@@ -35,7 +35,7 @@ from faceanim.drivers.video.tracking import track_frames
 from faceanim.face.face import Face
 from faceanim.face.generic_head import generic_head
 from faceanim.io.video import video_frames, video_info
-from faceanim.perform import default_database, face_regions, perform, performance_rig
+from faceanim.perform import EYE_CONTROLS, EYE_CURVES, default_database, face_regions, perform, performance_rig
 from faceanim.face.registration import face_to_head
 
 
@@ -85,16 +85,18 @@ def main() -> None:
     tri, bary = face_to_head(face)
     corners = head.mesh.faces[tri]
     jac = np.broadcast_to(face.registration.scale * face.registration.rotation, (len(tri), 3, 3))
-    curves = db.basis_curves
+    curves = db.basis_curves.copy()
+    curves[:, [list(db.curve_names).index(c) for c in EYE_CURVES]] = 0.0  # the lids are the blinks' own
     shapes = np.stack([head.shape(n) for n in db.curve_names])  # (C, Vs, 3)
+    blinks = np.stack([rig.blendshape(n) for n in EYE_CONTROLS])  # (2, V, 3), as the rig has them
 
     n_l = db.n_bases
 
     def per_vertex(w):  # the frame's source motion (lower and upper face), carried vertex by vertex
         motion = (np.einsum("fc,cvd->fvd", w[:, :n_l] @ curves, shapes) * regions["lower"][None, :, None]
-                  + np.einsum("fc,cvd->fvd", w[:, n_l:] @ curves, shapes) * regions["upper"][None, :, None])
+                  + np.einsum("fc,cvd->fvd", w[:, n_l:2 * n_l] @ curves, shapes) * regions["upper"][None, :, None])
         at = np.einsum("vc,fvcd->fvd", bary, motion[:, corners])
-        return face.mesh.vertices + np.einsum("vij,fvj->fvi", jac, at)
+        return face.mesh.vertices + np.einsum("vij,fvj->fvi", jac, at) + np.einsum("fk,kvd->fvd", w[:, 2 * n_l:], blinks)
 
     batch = weights[:100]
     check = np.abs(per_vertex(one)[0] - rig.evaluate(one)[0]).max()

@@ -52,11 +52,11 @@ def part(db: MotionDatabase, a: int, b: int) -> MotionDatabase:
 
 
 def markers_of(weights: np.ndarray, db: MotionDatabase) -> np.ndarray:
-    """(F, P, 3) markers of (F, 2L) lower/upper basis weights."""
+    """(F, P, 3) markers of (F, 2L [+ 2]) lower/upper basis weights (the blinks, if any, left out)."""
     low = face_regions()["lower"][db.marker_vertices][None, :, None]
     n = db.n_bases
     lower = np.einsum("fl,lpd->fpd", weights[:, :n], db.bases)
-    upper = np.einsum("fl,lpd->fpd", weights[:, n:], db.bases)
+    upper = np.einsum("fl,lpd->fpd", weights[:, n:2 * n], db.bases)
     return db.rest + low * lower + (1 - low) * upper
 
 

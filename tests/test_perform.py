@@ -122,12 +122,51 @@ def test_synthesis_driven_by_the_database_own_controls_gives_its_motion_back(db)
     direct = perform(tr, db, raw=True)
     truth = db.weights[a:b]
     n_l = db.n_bases
-    np.testing.assert_array_equal(synth.weights[:, :n_l], synth.weights[:, n_l:])  # one search: both halves
+    np.testing.assert_array_equal(synth.weights[:, :n_l], synth.weights[:, n_l:2 * n_l])  # one search: both halves
     synth.weights, direct.weights = synth.weights[:, :n_l], direct.weights[:, :n_l]
     scale = np.linalg.norm(truth, axis=1).mean()
     e_synth = np.linalg.norm(synth.weights - truth, axis=1).mean()
     e_direct = np.linalg.norm(direct.weights - truth, axis=1).mean()
     assert e_synth < 0.35 * scale and e_direct < 0.35 * scale
+
+
+def test_blinks_are_read_off_the_lids_in_the_performers_own_range(db):
+    """The lids' opening of a known clip: open (1.0, a little noise) with two blinks down to the
+    performer's closed lid (0.08) for four frames, the left eye also squinting to 0.6 once. The
+    blink curve is 0 at rest (the dead zone swallows the noise), 1 through each blink, about
+    (1 - 0.6) / (1 - 0.08) past the dead zone in the squint; and the ARKit export's EyeBlink columns
+    are these curves. A performer who never closes the eyes (lids down to 0.85 at most) gets a
+    curve under 0.2: the closed lid is then taken as a tenth of the open one, not the shallowest dip."""
+    from faceanim.drivers.video.tracking import Tracking
+    from faceanim.face.controls import CONTROL_NAMES
+    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.perform import BLINK_DEAD, arkit_curves, blink_curves, perform
+
+    n = 200
+    rng = np.random.default_rng(3)
+    raw = np.tile(db.raw[1000], (n, 1))
+    lids = 1.0 + 0.02 * rng.standard_normal((n, 2))
+    for a in (50, 140):
+        lids[a:a + 4] = 0.08
+    lids[100:106, 0] = 0.6  # the left eye squints
+    li, ri = CONTROL_NAMES.index("eye_open_L"), CONTROL_NAMES.index("eye_open_R")
+    raw[:, li], raw[:, ri] = 0.01 * lids[:, 0], 0.01 * lids[:, 1]
+    tr = Tracking(30.0, np.ones(n, bool), np.zeros((n, 6)), np.zeros((n, 19, 2)), raw, np.tile(db.controls[1000], (n, 1)), 0)
+    b = blink_curves(tr)
+    rest = np.ones(n, bool)
+    rest[45:60] = rest[95:111] = rest[135:150] = False
+    assert np.abs(b[rest]).max() == 0.0
+    for a in (50, 140):
+        np.testing.assert_allclose(b[a + 1:a + 3], 1.0)
+    squint = ((1.0 - 0.6) / (1.0 - 0.08) - BLINK_DEAD) / (1.0 - BLINK_DEAD)
+    assert abs(b[102, 0] - squint) < 0.05 and b[102, 1] == 0.0
+    perf = perform(tr, db)
+    np.testing.assert_array_equal(perf.weights[:, -2:], b)
+    curves = arkit_curves(perf, db)
+    np.testing.assert_allclose(curves[:, ARKIT_NAMES.index("EyeBlinkLeft")], b[:, 0])
+    np.testing.assert_allclose(curves[:, ARKIT_NAMES.index("EyeBlinkRight")], b[:, 1])
+    raw[:, li] = raw[:, ri] = 0.01 * np.where(np.arange(n) % 50 < 3, 0.85, 1.0)
+    assert blink_curves(tr).max() < 0.2
 
 
 def test_untracked_frames_hold_the_last_tracked_values():
@@ -174,7 +213,7 @@ def test_perform_command_writes_glb_csv_and_mp4(tmp_path, db):
     assert run(["perform", video, "--quiet", "-o", glb]) == 0
     doc = glb_json(glb)
     targets = doc["meshes"][0]["extras"]["targetNames"]
-    assert targets == [f"{r}_{k + 1:02d}" for r in ("lower", "upper") for k in range(db.n_bases)]
+    assert targets == [f"{r}_{k + 1:02d}" for r in ("lower", "upper") for k in range(db.n_bases)] + ["eyeBlinkLeft", "eyeBlinkRight"]
     anim = doc["animations"][0]
     assert [c["target"]["path"] for c in anim["channels"]] == ["weights", "rotation"]
     assert doc["accessors"][anim["samplers"][0]["input"]]["count"] == 78
@@ -247,24 +286,28 @@ def test_perform_bad_input(tmp_path, capsys, db):
 
 
 def test_face_regions_split_each_basis_exactly(db):
-    """The lower and upper copies of each retargeted basis add up to the whole basis, and the
-    jaw's basis lies almost all in the lower copy, the brows' in the upper."""
-    from faceanim.perform import face_regions, performance_rig
+    """The lower and upper copies of each retargeted basis add up to the whole basis (its lids left
+    out: the blinks are the rig's own two controls), and the jaw's basis lies almost all in the
+    lower copy, the brows' in the upper."""
+    from faceanim.perform import EYE_CURVES, face_regions, performance_rig
     from faceanim.rig.performance import retarget
 
     regions = face_regions()
     np.testing.assert_allclose(regions["lower"] + regions["upper"], 1.0)
     face = Face.default()
     rig = performance_rig(face, db)
-    whole = retarget(face, db.basis_curves[:2], db.curve_names)
+    curves = db.basis_curves[:2].copy()
+    curves[:, [list(db.curve_names).index(c) for c in EYE_CURVES]] = 0.0
+    whole = retarget(face, curves, db.curve_names)
     n = db.n_bases
     assert rig.controls[:2] == ["lower_01", "lower_02"] and rig.controls[n] == "upper_01"
     for i in range(2):
         np.testing.assert_allclose(rig.blendshape(rig.controls[i]) + rig.blendshape(rig.controls[n + i]),
                                    whole.blendshape(whole.controls[i]), atol=1e-12)
     jaw = db.weights[np.argmax(db.controls[:, 0])]  # the database's widest mouth opening
-    lower = rig.evaluate(np.r_[jaw, 0 * jaw][None])[0] - face.mesh.vertices
-    upper = rig.evaluate(np.r_[0 * jaw, jaw][None])[0] - face.mesh.vertices
+    assert rig.controls[2 * n:] == ["eyeBlinkLeft", "eyeBlinkRight"]
+    lower = rig.evaluate(np.r_[jaw, 0 * jaw, 0, 0][None])[0] - face.mesh.vertices
+    upper = rig.evaluate(np.r_[0 * jaw, jaw, 0, 0][None])[0] - face.mesh.vertices
     assert np.linalg.norm(lower) > 3 * np.linalg.norm(upper)
 
 
@@ -340,7 +383,7 @@ def test_the_head_turns_in_the_face_own_frame_whatever_the_mesh_axes(db):
     lying = Face(Mesh(face.mesh.vertices @ q.T, face.mesh.faces, name="lying"), face.landmarks @ q.T)
     pose = np.zeros((3, 6))
     pose[:, :3] = [[20.0, 0, 0], [0, 15.0, 0], [0, 0, 10.0]]
-    perf = Performance(30.0, np.zeros((3, 2 * db.n_bases)), pose, np.ones(3, bool))
+    perf = Performance(30.0, np.zeros((3, 2 * db.n_bases + 2)), pose, np.ones(3, bool))
     up = list(performance_frames(perf, performance_rig(face, db), face))
     down = list(performance_frames(perf, performance_rig(lying, db), lying))
     for a, b in zip(up, down):

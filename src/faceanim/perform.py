@@ -44,6 +44,13 @@ WINDOW, K, OVERLAP = 5, 30, 2  # segment length, neighbours, segments blended (t
 LOWER_FACE = ("mouth_open", "mouth_width", "mouth_centre_y")
 UPPER_FACE = ("nose_width", "nose_height", "eye_open_R", "eye_open_L", "brow_tilt_R", "brow_tilt_L",
               "brow_raise_R", "brow_raise_L", "brow_gap")
+# the lids: not synthesised from the database (K neighbours averaged, a blink came out a quarter
+# shut) but read directly off the performer's lid opening, per eye, in the performer's own range
+EYE_CONTROLS = ("eyeBlinkLeft", "eyeBlinkRight")  # the last two columns of Performance.weights
+EYE_CURVES = ("eyeBlink_L", "eyeBlink_R")  # the generic head's shapes they replace in the bases
+BLINK_DEAD = 0.1  # closures below this (of the performer's range) are rest: no droop from lid noise
+CLOSED_LID = 0.1  # MediaPipe's lid opening on a closed eye, of the open one (the performer's p1 when
+#                   they blink: 0.04-0.10 measured on the talking-head clips)
 REGION_EDGE = 0.02  # metres: the lower and upper face blend over this band at the subnasale
 HEAD_MIN_CUTOFF, HEAD_BETA = 0.5, 0.05  # One-Euro on the head's angles (Hz; per degree/second)
 
@@ -60,9 +67,10 @@ def default_database() -> MotionDatabase:
 
 @dataclass
 class Performance:
-    """A performance on a motion database's bases: ``weights`` (F, 2L) per video frame, the L
+    """A performance on a motion database's bases: ``weights`` (F, 2L + 2) per video frame, the L
     basis weights of the lower face then the L of the upper face (the same twice when the
-    synthesis was on the whole face or raw); the head ``pose`` (F, 6; see
+    synthesis was on the whole face or raw), then eyeBlinkLeft and eyeBlinkRight as read off the
+    performer's lids (:func:`blink_curves`); the head ``pose`` (F, 6; see
     :data:`~faceanim.drivers.video.tracking.POSE_NAMES`) with untracked frames held from the
     nearest tracked one and the rotation smoothed; ``tracked`` (F,); ``fps``; ``settings``: the
     window, K, overlap and delay (seconds) the synthesis used (None for raw)."""
@@ -105,6 +113,27 @@ def hold_untracked(values: np.ndarray, tracked: np.ndarray) -> np.ndarray:
         raise FaceAnimError("no face was found in any frame of the video; give a video where the face is seen")
     src = idx[np.clip(np.searchsorted(idx, np.arange(len(v)), side="right") - 1, 0, None)]
     return v[src]
+
+
+def blink_curves(tracking: Tracking) -> np.ndarray:
+    """(F, 2) eyeBlinkLeft and eyeBlinkRight (the subject's sides) read off the performer's lids:
+    each eye's opening (fronto-parallel lid distance) against the performer's own open eye (its
+    median over the clip: eyes are open most of the time) and closed eye (its 1st percentile when
+    the performer blinks, else :data:`CLOSED_LID` of the open one), as a closure in 0..1 with a dead
+    zone of :data:`BLINK_DEAD` at rest, and a 3-frame median against single-frame spikes (a blink
+    lasts 3-5 frames at 30 fps). Untracked frames hold the last tracked value."""
+    from scipy.ndimage import median_filter
+
+    out = []
+    for name in ("eye_open_L", "eye_open_R"):
+        o = hold_untracked(tracking.raw[:, [CONTROL_NAMES.index(name)]], tracking.tracked)[:, 0]
+        rest = float(np.median(o))
+        low = float(np.percentile(o, 1))
+        closed = low if low < 0.5 * rest else CLOSED_LID * rest
+        c = np.clip((rest - o) / max(rest - closed, 1e-12), 0.0, 1.0)
+        c = median_filter(c, size=3, mode="nearest")
+        out.append(np.clip((c - BLINK_DEAD) / (1.0 - BLINK_DEAD), 0.0, 1.0))
+    return np.stack(out, axis=1)
 
 
 def direct_mapping(db: MotionDatabase) -> np.ndarray:
@@ -150,9 +179,10 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
     pose = hold_untracked(tracking.pose, tracking.tracked)
     if smooth_head:
         pose[:, :3] = one_euro(pose[:, :3], tracking.fps, HEAD_MIN_CUTOFF, HEAD_BETA)
+    blinks = blink_curves(tracking)
     if raw:
         weights = np.c_[controls, np.ones(len(controls))] @ direct_mapping(db)
-        return Performance(tracking.fps, np.hstack([weights, weights]), pose, tracking.tracked.copy())
+        return Performance(tracking.fps, np.hstack([weights, weights, blinks]), pose, tracking.tracked.copy())
     t_video = np.arange(len(controls)) / tracking.fps
     resample = abs(tracking.fps - db.fps) > 1e-6 * db.fps
     if resample:
@@ -186,16 +216,26 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
     weights = np.hstack([lower, upper])
     if resample:
         weights = np.stack([np.interp(t_video, t_db, w) for w in weights.T], axis=1)
+    weights = np.hstack([weights, blinks])
     settings = {"window": window, "k": k, "overlap": int(overlap), "delay": (int(overlap) - 1) / db.fps}
     return Performance(tracking.fps, weights, pose, tracking.tracked.copy(), settings)
 
 
 def performance_rig(face: Face, db: MotionDatabase | None = None) -> Rig:
     """The face's rig for a motion database: each deformation basis retargeted once for the lower
-    and once for the upper face (:func:`face_regions`): 2L controls, ``lower_01`` ... then
-    ``upper_01`` ..., the columns of :attr:`Performance.weights`."""
+    and once for the upper face (:func:`face_regions`), its lids left out, then the face's own
+    ``eyeBlinkLeft`` and ``eyeBlinkRight`` (:func:`~faceanim.rig.arkit.blink_shapes`: they close
+    its eyes): 2L + 2 controls, ``lower_01`` ... ``upper_01`` ... and the two blinks, the columns of
+    :attr:`Performance.weights`."""
+    from faceanim.rig.arkit import blink_shapes
+
     db = db or default_database()
-    return retarget(face, db.basis_curves, db.curve_names, regions=face_regions())
+    curves = np.array(db.basis_curves, dtype=np.float64)
+    curves[:, [list(db.curve_names).index(n) for n in EYE_CURVES if n in db.curve_names]] = 0.0
+    bases = retarget(face, curves, db.curve_names, regions=face_regions())
+    shapes = {n: bases.blendshape(n) for n in bases.controls}
+    shapes.update(blink_shapes(face))
+    return Rig.from_blendshapes(face.mesh, shapes)
 
 
 def head_pivot(face: Face) -> np.ndarray:
@@ -215,19 +255,22 @@ UPPER_ARKIT = ("Eye", "Brow")  # ARKit curves of the upper face; all others are 
 def arkit_curves(perf: Performance, db: MotionDatabase) -> np.ndarray:
     """(F, 52) ARKit curves (Live Link Face order) of a performance: the bases written as the
     generic head's shapes (ICT names), the eyes' and brows' from the upper face's weights and the
-    rest from the lower face's, mapped back to ARKit's names, clamped to [0, 1]. The eyes' gaze
+    rest from the lower face's, mapped back to ARKit's names, the blinks as read off the lids
+    (:func:`blink_curves`), clamped to [0, 1]. The eyes' gaze
     (``EyeLook*``) is 0: no marker sees the eyeballs."""
     from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
 
     n_l = db.n_bases
     lower = perf.weights[:, :n_l] @ db.basis_curves
-    upper = perf.weights[:, n_l:] @ db.basis_curves
+    upper = perf.weights[:, n_l:2 * n_l] @ db.basis_curves
     col = {n: i for i, n in enumerate(db.curve_names)}
     out = np.zeros((perf.n_frames, len(ARKIT_NAMES)))
     for a, name in enumerate(ARKIT_NAMES):
         parts = [col[n] for n in ict_name(name) if n in col]
         if parts:
             out[:, a] = (upper if name.startswith(UPPER_ARKIT) else lower)[:, parts].mean(axis=1)
+    for k, name in enumerate(("EyeBlinkLeft", "EyeBlinkRight")):
+        out[:, ARKIT_NAMES.index(name)] = perf.weights[:, 2 * n_l + k]
     return np.clip(out, 0.0, 1.0)
 
 
@@ -291,7 +334,7 @@ def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | 
     if suffix == ".glb":
         from faceanim.io.gltf import write_gltf
 
-        spread = np.tile(np.maximum(db.weights.std(axis=0), 1e-12), 2)
+        spread = np.r_[np.tile(np.maximum(db.weights.std(axis=0), 1e-12), 2), np.ones(len(EYE_CONTROLS))]
         shapes = {n: rig.blendshape(n) * s for n, s in zip(rig.controls, spread)}
         times = np.arange(perf.n_frames) / perf.fps
         extras = {"fps": perf.fps, "basis_spread": [float(x) for x in spread[: db.n_bases]]}

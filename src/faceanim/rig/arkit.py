@@ -264,6 +264,20 @@ def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.nda
     return dy[:, None] * fr.rotation[1]
 
 
+def blink_shapes(face: Face, eyes: dict | None = None) -> dict[str, np.ndarray]:
+    """``eyeBlinkLeft`` and ``eyeBlinkRight`` alone, as :func:`arkit_shapes` makes them (ICT's
+    blinks carried, then closed by :func:`_lid_closure`), for drivers that need only the lids.
+    ``eyes``: the eye pieces (found through the registration when not given)."""
+    names = ["eyeBlink_L", "eyeBlink_R"]
+    ict = retarget(face, np.eye(2), names, names=names)
+    eyes = registered_eyes(face) if eyes is None else eyes
+    out = {}
+    for slit, ict_name_, name in (("eye_L", "eyeBlink_L", "eyeBlinkLeft"), ("eye_R", "eyeBlink_R", "eyeBlinkRight")):
+        d = ict.blendshape(ict_name_)
+        out[name] = d + _lid_closure(face, d, slit, eyes)
+    return out
+
+
 def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """ARKit's shapes on ``face``: :func:`arkit_rig`'s, with the ``eyeLook*`` shapes also turning
     the eyeballs ``eyes`` (:attr:`FapRig.eyes <faceanim.rig.mpeg4.FapRig>`; found when not given),

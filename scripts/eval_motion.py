@@ -1,0 +1,222 @@
+"""Does the avatar's face do what the performer's does? The judge of motion fidelity (issue 20).
+
+For each talking-head clip, ``faceanim perform``'s avatar (the default face) is rendered from the
+front frame by frame, and the same measurements are taken on the video and on the renders, by the
+same code: MediaPipe's face mesh (video mode), the head's pose taken out (a similarity onto the
+generic head's landmarks that no expression moves, as tracking does), then per frame, in the
+generic head's units:
+
+- ``gap``: the inner lips' opening (landmarks 13 - 14, up the face);
+- ``width``: the mouth's width (corners 61 - 291);
+- ``round``: the inner lip contour's width over its height (78 - 308 over 13 - 14), on frames where
+  the mouth is open (the gap over a fifth of the width): small when the lips round ("o", "u");
+- ``eye``: the lids' opening over the eye's width, both eyes averaged (159 - 145, 386 - 374);
+- ``brow``: the brows' height over the upper lids (105 - 159, 334 - 386);
+- ``smile``: the mouth corners' height over the middle of the lips (61, 291 against 0, 17).
+
+Per clip and measure: ``r`` (Pearson, frames measured on both sides), ``range`` (the avatar's
+p5-p95 over the performer's), ``rest`` (the avatar's median over the performer's still frames,
+less the avatar's own neutral, in units of the performer's p5-p95: a face that smiles at rest
+shows it here), and for the eyes ``blink`` (the deepest closure, 1 - p2 / median of the eye
+opening; the performer's and the avatar's) and ``blink ratio`` (the avatar's minimum opening over
+the performer's, relative to each one's median: the goal is <= 1.5).
+
+Clips d0, d3, d9 are the tuning set, d10, d14, d18 the held-out set (``--clips`` to choose);
+the summary gives the median of each figure over each set.
+
+Usage (from /work/main): ``python scripts/eval_motion.py ../shared/data [--clips d10,d14] [--size 512]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+
+TUNING = ("d0", "d3", "d9")
+HELD_OUT = ("d10", "d14", "d18")
+MEASURES = ("gap", "width", "round", "eye", "brow", "smile")
+CHUNK = 64
+
+
+class Measurer:
+    """MediaPipe's face mesh in video mode over a stream of frames -> the measures per frame."""
+
+    def __init__(self):
+        import mediapipe as mp
+
+        from faceanim.drivers.video.tracking import rigid_landmarks
+        from faceanim.face.generic_head import generic_head
+
+        self._fm = mp.solutions.face_mesh.FaceMesh(static_image_mode=False, max_num_faces=1,
+                                                   refine_landmarks=True, min_detection_confidence=0.5,
+                                                   min_tracking_confidence=0.5)
+        self._ref = generic_head().landmarks()
+        self._rigid = rigid_landmarks()
+
+    def __call__(self, frame: np.ndarray) -> np.ndarray:
+        from faceanim.face.frame import similarity
+
+        h, w = frame.shape[:2]
+        res = self._fm.process(np.ascontiguousarray(frame))
+        if not res.multi_face_landmarks:
+            return np.full(len(MEASURES), np.nan)
+        lm = np.array([[p.x * w, p.y * h, p.z * w] for p in res.multi_face_landmarks[0].landmark])
+        q = lm * np.array([1.0, -1.0, -1.0])
+        s, r, t = similarity(self._ref[self._rigid], q[self._rigid])
+        f = ((q - t) @ r) / s  # fronto-parallel, generic head units (x the face's left, y up)
+        return measures(f)
+
+    def close(self):
+        self._fm.close()
+
+
+def measures(f: np.ndarray) -> np.ndarray:
+    """The six measures (module docstring) of one frame's 478 fronto-parallel landmarks."""
+    gap = f[13, 1] - f[14, 1]
+    width = abs(f[291, 0] - f[61, 0])
+    inner = abs(f[308, 0] - f[78, 0])
+    rnd = inner / gap if gap > 0.2 * width else np.nan
+    eye = 0.5 * ((f[159, 1] - f[145, 1]) / abs(f[133, 0] - f[33, 0])
+                 + (f[386, 1] - f[374, 1]) / abs(f[362, 0] - f[263, 0]))
+    brow = 0.5 * ((f[105, 1] - f[159, 1]) + (f[334, 1] - f[386, 1]))
+    smile = 0.5 * (f[61, 1] + f[291, 1]) - 0.5 * (f[0, 1] + f[17, 1])
+    return np.array([gap, width, rnd, eye, brow, smile])
+
+
+def measure_video(path: Path) -> tuple[np.ndarray, float]:
+    from faceanim.io.video import video_frames, video_info
+
+    info = video_info(path)
+    m = Measurer()
+    try:
+        out = np.array([m(fr) for fr in video_frames(info)])
+    finally:
+        m.close()
+    return out, info.fps
+
+
+def measure_avatar(face, vertices_iter, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Render each frame's vertices from the front (the default face, textured) and measure; also
+    the neutral face's measures."""
+    from faceanim.face.landmarks import _face_frame
+    from faceanim.render import OffscreenRenderer
+
+    rot = face.frame.rotation
+    m = Measurer()
+    out = []
+    with OffscreenRenderer(face.mesh, size=(size, size), parallel=True, rotation=rot,
+                           frame_vertices=_face_frame(face.mesh, rot), margin=1.0) as r:
+        neutral_img = r.render(face.mesh.vertices)
+        for _ in range(5):  # settle the tracker on the neutral face first
+            neutral = m(neutral_img)
+        for v in vertices_iter:
+            out.append(m(r.render(v)))
+    m.close()
+    return np.array(out), neutral
+
+
+def still(values: np.ndarray, ok: np.ndarray, fraction: float = 0.2) -> np.ndarray:
+    """Frames where the performer's measures move least (a centred 9-frame window)."""
+    d = np.abs(np.diff(values[:, [0, 1, 3, 4, 5]], axis=0))
+    scale = np.nanmedian(d, axis=0)
+    motion = np.r_[np.nan, np.nansum(d / np.where(scale > 0, scale, 1.0), axis=1)]
+    local = np.array([np.nanmean(motion[max(0, t - 4):t + 5]) if ok[max(0, t - 4):t + 5].all() else np.inf
+                      for t in range(len(motion))])
+    good = np.flatnonzero(np.isfinite(local))
+    return good[np.argsort(local[good], kind="stable")[:max(1, int(fraction * len(good)))]]
+
+
+def figures(perf: np.ndarray, av: np.ndarray, neutral: np.ndarray) -> dict:
+    out = {}
+    rest = still(perf, np.isfinite(perf[:, [0, 3]]).all(axis=1))
+    for k, name in enumerate(MEASURES):
+        p, a = perf[:, k], av[:, k]
+        ok = np.isfinite(p) & np.isfinite(a)
+        if ok.sum() < 10:
+            out[name] = {}
+            continue
+        span_p = np.percentile(p[ok], 95) - np.percentile(p[ok], 5)
+        span_a = np.percentile(a[ok], 95) - np.percentile(a[ok], 5)
+        r = float(np.corrcoef(p[ok], a[ok])[0, 1]) if p[ok].std() > 0 and a[ok].std() > 0 else float("nan")
+        at_rest = a[rest][np.isfinite(a[rest])]
+        bias = (float(np.median(at_rest)) - neutral[k]) / span_p if at_rest.size and np.isfinite(neutral[k]) else np.nan
+        out[name] = {"r": r, "range": span_a / span_p if span_p > 0 else np.nan, "rest": bias}
+    for label, series in (("performer", perf[:, 3]), ("avatar", av[:, 3])):
+        s = series[np.isfinite(series)]
+        out["eye"][f"blink {label}"] = 1.0 - np.percentile(s, 2) / np.median(s)
+    pe, ae = perf[:, 3][np.isfinite(perf[:, 3])], av[:, 3][np.isfinite(av[:, 3])]
+    out["eye"]["blink ratio"] = (np.percentile(ae, 2) / np.median(ae)) / max(np.percentile(pe, 2) / np.median(pe), 1e-6)
+    return out
+
+
+def run_clip(path: Path, face, size: int) -> dict:
+    from faceanim.drivers.video.tracking import track_video
+    from faceanim.perform import default_database, perform, performance_rig
+
+    t = time.perf_counter()
+    perf_m, fps = measure_video(path)
+    tracking = track_video(path)
+    db = default_database()
+    performance = perform(tracking, db)
+    rig = performance_rig(face, db)
+
+    def frames():
+        for a in range(0, performance.n_frames, CHUNK):
+            yield from rig.evaluate(performance.weights[a:a + CHUNK])
+
+    av_m, neutral = measure_avatar(face, frames(), size)
+    fig = figures(perf_m, av_m, neutral)
+    fig["frames"] = len(perf_m)
+    fig["seconds"] = time.perf_counter() - t
+    return fig
+
+
+def fmt(x) -> str:
+    return "n/a" if x is None or not np.isfinite(x) else f"{x:.2f}"
+
+
+def main(argv=None) -> None:
+    from faceanim.face.face import Face
+
+    p = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    p.add_argument("data", type=Path, help="the shared data folder (../shared/data)")
+    p.add_argument("--clips", default=",".join(TUNING + HELD_OUT), help="clip names (default: all six)")
+    p.add_argument("--size", type=int, default=512, help="render size of the avatar (pixels)")
+    args = p.parse_args(argv)
+    face = Face.default()
+    results = {}
+    for name in args.clips.split(","):
+        path = args.data / "talking-head-videos" / f"{name}.mp4"
+        results[name] = run_clip(path, face, args.size)
+        f = results[name]
+        print(f"{name}: {f['frames']} frames, {f['seconds']:.0f} s; gap r {fmt(f['gap'].get('r'))} range "
+              f"{fmt(f['gap'].get('range'))}; blink performer {fmt(f['eye']['blink performer'])} avatar "
+              f"{fmt(f['eye']['blink avatar'])}", flush=True)
+    print("\n| clip | set | gap r | gap range | width r | round r | eye r | eye range | blink performer | "
+          "blink avatar | blink ratio | brow r | smile r | smile at rest |")
+    print("|---|---|" + "---:|" * 12)
+    for name, f in results.items():
+        kind = "tuning" if name in TUNING else "held out" if name in HELD_OUT else "-"
+        row = [f["gap"].get("r"), f["gap"].get("range"), f["width"].get("r"), f["round"].get("r"), f["eye"].get("r"),
+               f["eye"].get("range"), f["eye"]["blink performer"], f["eye"]["blink avatar"], f["eye"]["blink ratio"],
+               f["brow"].get("r"), f["smile"].get("r"), f["smile"].get("rest")]
+        print(f"| {name} | {kind} | " + " | ".join(fmt(x) for x in row) + " |")
+    for label, group in (("tuning", TUNING), ("held out", HELD_OUT)):
+        chosen = [results[n] for n in group if n in results]
+        if not chosen:
+            continue
+        med = {key: np.nanmedian([c[m].get(s, np.nan) for c in chosen])
+               for key, (m, s) in {"gap r": ("gap", "r"), "gap range": ("gap", "range"), "round r": ("round", "r"),
+                                   "blink ratio": ("eye", "blink ratio"), "smile at rest": ("smile", "rest")}.items()}
+        print(f"median over the {label} clips: " + ", ".join(f"{k} {fmt(v)}" for k, v in med.items()))
+
+
+if __name__ == "__main__":
+    main()
