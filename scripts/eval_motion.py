@@ -17,9 +17,10 @@ generic head's units:
 Per clip and measure: ``r`` (Pearson, frames measured on both sides), ``range`` (the avatar's
 p5-p95 over the performer's), ``rest`` (the avatar's median over the performer's still frames,
 less the avatar's own neutral, in units of the performer's p5-p95: a face that smiles at rest
-shows it here), and for the eyes ``blink`` (the deepest closure, 1 - p2 / median of the eye
+shows it here; for the eyes, the avatar's opening at rest over its neutral one, less 1: the goal is
+within 10%), and for the eyes ``blink`` (the deepest closure, 1 - p2 / median of the eye
 opening; the performer's and the avatar's) and ``blink ratio`` (the avatar's minimum opening over
-the performer's, relative to each one's median: the goal is <= 1.5).
+the performer's, relative to each one's median, both floored at 5%: the goal is <= 1.5).
 
 Clips d0, d3, d9 are the tuning set, d10, d14, d18 the held-out set (``--clips`` to choose);
 the summary gives the median of each figure over each set.
@@ -43,6 +44,7 @@ TUNING = ("d0", "d3", "d9")
 HELD_OUT = ("d10", "d14", "d18")
 MEASURES = ("gap", "width", "round", "eye", "brow", "smile")
 CHUNK = 64
+SHUT = 0.05  # an eye opening under this share of the open one counts as shut
 
 
 class Measurer:
@@ -151,8 +153,12 @@ def figures(perf: np.ndarray, av: np.ndarray, neutral: np.ndarray) -> dict:
     for label, series in (("performer", perf[:, 3]), ("avatar", av[:, 3])):
         s = series[np.isfinite(series)]
         out["eye"][f"blink {label}"] = 1.0 - np.percentile(s, 2) / np.median(s)
+    rest_eye = av[rest, 3][np.isfinite(av[rest, 3])]
+    out["eye"]["rest vs neutral"] = float(np.median(rest_eye) / neutral[3] - 1.0) if rest_eye.size else np.nan
     pe, ae = perf[:, 3][np.isfinite(perf[:, 3])], av[:, 3][np.isfinite(av[:, 3])]
-    out["eye"]["blink ratio"] = (np.percentile(ae, 2) / np.median(ae)) / max(np.percentile(pe, 2) / np.median(pe), 1e-6)
+    # MediaPipe's lids on a shut eye measure 0-8% of the open eye (even below 0): the performer's
+    # minimum is floored at 5% so that the ratio says how far the avatar is from shut
+    out["eye"]["blink ratio"] = max(np.percentile(ae, 2) / np.median(ae), SHUT) / max(np.percentile(pe, 2) / np.median(pe), SHUT)
     return out
 
 
@@ -199,13 +205,13 @@ def main(argv=None) -> None:
         print(f"{name}: {f['frames']} frames, {f['seconds']:.0f} s; gap r {fmt(f['gap'].get('r'))} range "
               f"{fmt(f['gap'].get('range'))}; blink performer {fmt(f['eye']['blink performer'])} avatar "
               f"{fmt(f['eye']['blink avatar'])}", flush=True)
-    print("\n| clip | set | gap r | gap range | width r | round r | eye r | eye range | blink performer | "
+    print("\n| clip | set | gap r | gap range | width r | round r | eye r | eye range | eye at rest | blink performer | "
           "blink avatar | blink ratio | brow r | smile r | smile at rest |")
-    print("|---|---|" + "---:|" * 12)
+    print("|---|---|" + "---:|" * 13)
     for name, f in results.items():
         kind = "tuning" if name in TUNING else "held out" if name in HELD_OUT else "-"
         row = [f["gap"].get("r"), f["gap"].get("range"), f["width"].get("r"), f["round"].get("r"), f["eye"].get("r"),
-               f["eye"].get("range"), f["eye"]["blink performer"], f["eye"]["blink avatar"], f["eye"]["blink ratio"],
+               f["eye"].get("range"), f["eye"].get("rest vs neutral"), f["eye"]["blink performer"], f["eye"]["blink avatar"], f["eye"]["blink ratio"],
                f["brow"].get("r"), f["smile"].get("r"), f["smile"].get("rest")]
         print(f"| {name} | {kind} | " + " | ".join(fmt(x) for x in row) + " |")
     for label, group in (("tuning", TUNING), ("held out", HELD_OUT)):
@@ -214,7 +220,8 @@ def main(argv=None) -> None:
             continue
         med = {key: np.nanmedian([c[m].get(s, np.nan) for c in chosen])
                for key, (m, s) in {"gap r": ("gap", "r"), "gap range": ("gap", "range"), "round r": ("round", "r"),
-                                   "blink ratio": ("eye", "blink ratio"), "smile at rest": ("smile", "rest")}.items()}
+                                   "eye at rest": ("eye", "rest vs neutral"), "blink ratio": ("eye", "blink ratio"),
+                                   "smile at rest": ("smile", "rest")}.items()}
         print(f"median over the {label} clips: " + ", ".join(f"{k} {fmt(v)}" for k, v in med.items()))
 
 
