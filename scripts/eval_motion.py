@@ -12,7 +12,9 @@ generic head's units:
   the mouth is open (the gap over a fifth of the width): small when the lips round ("o", "u");
 - ``eye``: the lids' opening over the eye's width, both eyes averaged (159 - 145, 386 - 374);
 - ``brow``: the brows' height over the upper lids (105 - 159, 334 - 386);
-- ``smile``: the mouth corners' height over the middle of the lips (61, 291 against 0, 17).
+- ``smile``: the mouth corners' height over the middle of the lips (61, 291 against 0, 17);
+- ``gaze x``, ``gaze y``: where the irises sit in the eyes (468, 473 against the corners), both eyes
+  averaged, in eye widths.
 
 Per clip and measure: ``r`` (Pearson, frames measured on both sides), ``range`` (the avatar's
 p5-p95 over the performer's), ``rest`` (the avatar's median over the performer's still frames,
@@ -42,7 +44,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 TUNING = ("d0", "d3", "d9")
 HELD_OUT = ("d10", "d14", "d18")
-MEASURES = ("gap", "width", "round", "eye", "brow", "smile")
+MEASURES = ("gap", "width", "round", "eye", "brow", "smile", "gaze x", "gaze y")
 CHUNK = 64
 SHUT = 0.05  # an eye opening under this share of the open one counts as shut
 
@@ -89,7 +91,10 @@ def measures(f: np.ndarray) -> np.ndarray:
                  + (f[386, 1] - f[374, 1]) / abs(f[362, 0] - f[263, 0]))
     brow = 0.5 * ((f[105, 1] - f[159, 1]) + (f[334, 1] - f[386, 1]))
     smile = 0.5 * (f[61, 1] + f[291, 1]) - 0.5 * (f[0, 1] + f[17, 1])
-    return np.array([gap, width, rnd, eye, brow, smile])
+    from faceanim.drivers.video.tracking import gaze_offsets
+
+    g = gaze_offsets(f)
+    return np.array([gap, width, rnd, eye, brow, smile, 0.5 * (g[0] + g[2]), 0.5 * (g[1] + g[3])])
 
 
 def measure_video(path: Path) -> tuple[np.ndarray, float]:
@@ -206,13 +211,14 @@ def main(argv=None) -> None:
               f"{fmt(f['gap'].get('range'))}; blink performer {fmt(f['eye']['blink performer'])} avatar "
               f"{fmt(f['eye']['blink avatar'])}", flush=True)
     print("\n| clip | set | gap r | gap range | width r | round r | eye r | eye range | eye at rest | blink performer | "
-          "blink avatar | blink ratio | brow r | smile r | smile at rest |")
-    print("|---|---|" + "---:|" * 13)
+          "blink avatar | blink ratio | brow r | smile r | smile at rest | gaze x r | gaze y r |")
+    print("|---|---|" + "---:|" * 15)
     for name, f in results.items():
         kind = "tuning" if name in TUNING else "held out" if name in HELD_OUT else "-"
         row = [f["gap"].get("r"), f["gap"].get("range"), f["width"].get("r"), f["round"].get("r"), f["eye"].get("r"),
                f["eye"].get("range"), f["eye"].get("rest vs neutral"), f["eye"]["blink performer"], f["eye"]["blink avatar"], f["eye"]["blink ratio"],
-               f["brow"].get("r"), f["smile"].get("r"), f["smile"].get("rest")]
+               f["brow"].get("r"), f["smile"].get("r"), f["smile"].get("rest"), f["gaze x"].get("r"),
+               f["gaze y"].get("r")]
         print(f"| {name} | {kind} | " + " | ".join(fmt(x) for x in row) + " |")
     for label, group in (("tuning", TUNING), ("held out", HELD_OUT)):
         chosen = [results[n] for n in group if n in results]

@@ -161,12 +161,52 @@ def test_blinks_are_read_off_the_lids_in_the_performers_own_range(db):
     squint = ((1.0 - 0.6) / (1.0 - 0.08) - BLINK_DEAD) / (1.0 - BLINK_DEAD)
     assert abs(b[102, 0] - squint) < 0.05 and b[102, 1] == 0.0
     perf = perform(tr, db)
-    np.testing.assert_array_equal(perf.weights[:, -2:], b)
+    np.testing.assert_array_equal(perf.weights[:, 2 * db.n_bases:2 * db.n_bases + 2], b)
     curves = arkit_curves(perf, db)
     np.testing.assert_allclose(curves[:, ARKIT_NAMES.index("EyeBlinkLeft")], b[:, 0])
     np.testing.assert_allclose(curves[:, ARKIT_NAMES.index("EyeBlinkRight")], b[:, 1])
     raw[:, li] = raw[:, ri] = 0.01 * np.where(np.arange(n) % 50 < 3, 0.85, 1.0)
     assert blink_curves(tr).max() < 0.2
+
+
+def test_gaze_is_read_off_the_irises(db):
+    """Known iris offsets (eye widths, x to the subject's left): both irises at the clip's median
+    (looking at the camera), then 0.1 to the subject's left for 20 frames, then 0.08 down. Looking
+    left is the left eye's Out and the right eye's In, by the angle asin(0.1 / IRIS_RADIUS) over the
+    take's angle at weight 1; looking down is Down on both; nothing else moves; through a blink (the
+    iris unseen, its offset thrown off) the gaze holds; the ARKit export carries the curves."""
+    from faceanim.drivers.video.tracking import Tracking
+    from faceanim.face.controls import CONTROL_NAMES
+    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.perform import EYE_CONTROLS, IRIS_RADIUS, arkit_curves, perform
+    from faceanim.rig.arkit import LOOK_ANGLES
+
+    n = 120
+    gaze = np.zeros((n, 4))
+    gaze[40:60, [0, 2]] = 0.1
+    gaze[80:100, [1, 3]] = -0.08
+    raw = np.tile(db.raw[1000], (n, 1))
+    lids = np.ones(n)
+    lids[50:54] = 0.08  # a blink while looking left: the irises' offsets are junk then
+    gaze[50:54] = [[-0.3, 0.2, -0.3, 0.2]] * 4
+    for name in ("eye_open_L", "eye_open_R"):
+        raw[:, CONTROL_NAMES.index(name)] = 0.01 * lids
+    tr = Tracking(30.0, np.ones(n, bool), np.zeros((n, 6)), np.zeros((n, 19, 2)), raw, np.tile(db.controls[1000], (n, 1)),
+                  0, gaze)
+    perf = perform(tr, db)
+    w = dict(zip(EYE_CONTROLS, perf.weights[:, 2 * db.n_bases:].T))
+    left = np.arcsin(0.1 / IRIS_RADIUS)
+    down = np.arcsin(0.08 / IRIS_RADIUS)
+    np.testing.assert_allclose(w["eyeLookOutLeft"][42:58], left / LOOK_ANGLES["Out"])
+    np.testing.assert_allclose(w["eyeLookInRight"][42:58], left / LOOK_ANGLES["In"])
+    np.testing.assert_allclose(w["eyeLookDownLeft"][82:98], down / LOOK_ANGLES["Down"])
+    np.testing.assert_allclose(w["eyeLookDownRight"][82:98], down / LOOK_ANGLES["Down"])
+    for name in ("eyeLookInLeft", "eyeLookOutRight", "eyeLookUpLeft", "eyeLookUpRight"):
+        assert np.abs(w[name]).max() == 0.0, name
+    assert np.abs(w["eyeLookOutLeft"][:38]).max() == 0.0 and np.abs(w["eyeLookDownLeft"][:78]).max() == 0.0
+    curves = arkit_curves(perf, db)
+    np.testing.assert_allclose(curves[:, ARKIT_NAMES.index("EyeLookOutLeft")], w["eyeLookOutLeft"])
+    np.testing.assert_allclose(curves[:, ARKIT_NAMES.index("EyeLookDownRight")], w["eyeLookDownRight"])
 
 
 def test_untracked_frames_hold_the_last_tracked_values():
@@ -207,13 +247,14 @@ def test_perform_command_writes_glb_csv_and_mp4(tmp_path, db):
     from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
     from faceanim.io.gltf import glb_json
     from faceanim.io.video import video_info
+    from faceanim.perform import EYE_CONTROLS
 
     video = VIDEOS / "d0.mp4"
     glb, out_csv, mp4 = tmp_path / "p.glb", tmp_path / "p.csv", tmp_path / "p.mp4"
     assert run(["perform", video, "--quiet", "-o", glb]) == 0
     doc = glb_json(glb)
     targets = doc["meshes"][0]["extras"]["targetNames"]
-    assert targets == [f"{r}_{k + 1:02d}" for r in ("lower", "upper") for k in range(db.n_bases)] + ["eyeBlinkLeft", "eyeBlinkRight"]
+    assert targets == [f"{r}_{k + 1:02d}" for r in ("lower", "upper") for k in range(db.n_bases)] + list(EYE_CONTROLS)
     anim = doc["animations"][0]
     assert [c["target"]["path"] for c in anim["channels"]] == ["weights", "rotation"]
     assert doc["accessors"][anim["samplers"][0]["input"]]["count"] == 78
@@ -289,7 +330,7 @@ def test_face_regions_split_each_basis_exactly(db):
     """The lower and upper copies of each retargeted basis add up to the whole basis (its lids left
     out: the blinks are the rig's own two controls), and the jaw's basis lies almost all in the
     lower copy, the brows' in the upper."""
-    from faceanim.perform import EYE_CURVES, face_regions, performance_rig
+    from faceanim.perform import EYE_CONTROLS, EYE_CURVES, face_regions, performance_rig
     from faceanim.rig.performance import retarget
 
     regions = face_regions()
@@ -305,9 +346,10 @@ def test_face_regions_split_each_basis_exactly(db):
         np.testing.assert_allclose(rig.blendshape(rig.controls[i]) + rig.blendshape(rig.controls[n + i]),
                                    whole.blendshape(whole.controls[i]), atol=1e-12)
     jaw = db.weights[np.argmax(db.controls[:, 0])]  # the database's widest mouth opening
-    assert rig.controls[2 * n:] == ["eyeBlinkLeft", "eyeBlinkRight"]
-    lower = rig.evaluate(np.r_[jaw, 0 * jaw, 0, 0][None])[0] - face.mesh.vertices
-    upper = rig.evaluate(np.r_[0 * jaw, jaw, 0, 0][None])[0] - face.mesh.vertices
+    assert rig.controls[2 * n:] == list(EYE_CONTROLS)
+    eyes = np.zeros(len(EYE_CONTROLS))
+    lower = rig.evaluate(np.r_[jaw, 0 * jaw, eyes][None])[0] - face.mesh.vertices
+    upper = rig.evaluate(np.r_[0 * jaw, jaw, eyes][None])[0] - face.mesh.vertices
     assert np.linalg.norm(lower) > 3 * np.linalg.norm(upper)
 
 
@@ -383,9 +425,30 @@ def test_the_head_turns_in_the_face_own_frame_whatever_the_mesh_axes(db):
     lying = Face(Mesh(face.mesh.vertices @ q.T, face.mesh.faces, name="lying"), face.landmarks @ q.T)
     pose = np.zeros((3, 6))
     pose[:, :3] = [[20.0, 0, 0], [0, 15.0, 0], [0, 0, 10.0]]
-    perf = Performance(30.0, np.zeros((3, 2 * db.n_bases + 2)), pose, np.ones(3, bool))
+    perf = Performance(30.0, np.zeros((3, 2 * db.n_bases + 10)), pose, np.ones(3, bool))
     up = list(performance_frames(perf, performance_rig(face, db), face))
     down = list(performance_frames(perf, performance_rig(lying, db), lying))
     for a, b in zip(up, down):
         np.testing.assert_allclose(b, a @ q.T, atol=1e-9)
     assert np.linalg.norm(up[0] - face.mesh.vertices, axis=1).max() > 0.02  # a real turn
+
+
+def test_a_rendered_gaze_is_read_back():
+    """The loop as an oracle: the default face rendered looking to its left (eyeLookOutLeft and
+    eyeLookInRight at 0.8, its own shapes turning its eyeballs) between neutral frames, tracked
+    from the renders: the gaze curves give the two looks back (within 0.15) and leave the other
+    six near 0 (under 0.1)."""
+    from faceanim.drivers.video.tracking import track_frames
+    from faceanim.perform import EYE_CONTROLS, blink_curves, look_curves
+    from faceanim.render import OffscreenRenderer
+    from faceanim.rig.arkit import look_shapes
+
+    face = Face.default()
+    shapes = look_shapes(face)
+    v0 = face.mesh.vertices
+    with OffscreenRenderer(face.mesh, size=(512, 512), **face.view(yaw=0.0, pitch=0.0)) as r:
+        rest, look = r.render(v0), r.render(v0 + 0.8 * (shapes["eyeLookOutLeft"] + shapes["eyeLookInRight"]))
+    tr = track_frames([rest] * 30 + [look] * 20 + [rest] * 30, 30.0)
+    curves = dict(zip(EYE_CONTROLS[2:], look_curves(tr, blink_curves(tr))[35:45].mean(axis=0)))
+    assert abs(curves.pop("eyeLookOutLeft") - 0.8) < 0.15 and abs(curves.pop("eyeLookInRight") - 0.8) < 0.15
+    assert max(curves.values()) < 0.1, curves

@@ -46,11 +46,17 @@ UPPER_FACE = ("nose_width", "nose_height", "eye_open_R", "eye_open_L", "brow_til
               "brow_raise_R", "brow_raise_L", "brow_gap")
 # the lids: not synthesised from the database (K neighbours averaged, a blink came out a quarter
 # shut) but read directly off the performer's lid opening, per eye, in the performer's own range
-EYE_CONTROLS = ("eyeBlinkLeft", "eyeBlinkRight")  # the last two columns of Performance.weights
+# the eyes' controls, the last columns of Performance.weights: the blinks, then the gaze
+EYE_CONTROLS = ("eyeBlinkLeft", "eyeBlinkRight", "eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft",
+                "eyeLookDownLeft", "eyeLookInRight", "eyeLookOutRight", "eyeLookUpRight", "eyeLookDownRight")
 EYE_CURVES = ("eyeBlink_L", "eyeBlink_R")  # the generic head's shapes they replace in the bases
 BLINK_DEAD = 0.1  # closures below this (of the performer's range) are rest: no droop from lid noise
 CLOSED_LID = 0.1  # MediaPipe's lid opening on a closed eye, of the open one (the performer's p1 when
 #                   they blink: 0.04-0.10 measured on the talking-head clips)
+IRIS_RADIUS = 0.26  # eye widths the iris offset (MediaPipe's, against the eye's corners) moves per
+#                    radian of the eye's turn, as sin: the default face rendered looking 0.46 rad to
+#                    its left and tracked moved its irises 0.10 and 0.13 eye widths
+GAZE_HOLD = 0.5  # while a lid is closed this far, the iris is not seen: the gaze holds
 REGION_EDGE = 0.02  # metres: the lower and upper face blend over this band at the subnasale
 HEAD_MIN_CUTOFF, HEAD_BETA = 0.5, 0.05  # One-Euro on the head's angles (Hz; per degree/second)
 
@@ -67,10 +73,10 @@ def default_database() -> MotionDatabase:
 
 @dataclass
 class Performance:
-    """A performance on a motion database's bases: ``weights`` (F, 2L + 2) per video frame, the L
+    """A performance on a motion database's bases: ``weights`` (F, 2L + 10) per video frame, the L
     basis weights of the lower face then the L of the upper face (the same twice when the
-    synthesis was on the whole face or raw), then eyeBlinkLeft and eyeBlinkRight as read off the
-    performer's lids (:func:`blink_curves`); the head ``pose`` (F, 6; see
+    synthesis was on the whole face or raw), then the eyes' :data:`EYE_CONTROLS` as read off the
+    performer's lids and irises (:func:`blink_curves`, :func:`look_curves`); the head ``pose`` (F, 6; see
     :data:`~faceanim.drivers.video.tracking.POSE_NAMES`) with untracked frames held from the
     nearest tracked one and the rotation smoothed; ``tracked`` (F,); ``fps``; ``settings``: the
     window, K, overlap and delay (seconds) the synthesis used (None for raw)."""
@@ -136,6 +142,37 @@ def blink_curves(tracking: Tracking) -> np.ndarray:
     return np.stack(out, axis=1)
 
 
+def look_curves(tracking: Tracking, blinks: np.ndarray) -> np.ndarray:
+    """(F, 8) the eyeLook curves (In, Out, Up, Down of the left eye, then the right's) from where
+    the irises sit in the eyes (:attr:`Tracking.gaze`): each offset less the performer's median
+    (looking at the camera most of the time), turned into an angle on a sphere of
+    :data:`IRIS_RADIUS` eye widths, and into weights by the angles a Live Link Face take records at
+    weight 1 (:data:`~faceanim.rig.arkit.LOOK_ANGLES`). Held while the lid is shut (``blinks`` over
+    :data:`GAZE_HOLD`) or the face is lost; a 3-frame median. Zeros without gaze tracking."""
+    from scipy.ndimage import median_filter
+
+    from faceanim.rig.arkit import LOOK_ANGLES
+
+    n = tracking.n_frames
+    if tracking.gaze is None:
+        return np.zeros((n, 8))
+    seen = tracking.tracked & np.all(np.isfinite(tracking.gaze), axis=1)
+    out = []
+    for k, outward in ((0, 1.0), (1, -1.0)):  # left eye: +x is outward (its Out); right eye: inward
+        g = np.array(tracking.gaze[:, 2 * k:2 * k + 2], dtype=np.float64)
+        ok = seen & (blinks[:, k] < GAZE_HOLD)
+        if not ok.any():
+            out.append(np.zeros((n, 4)))
+            continue
+        g = hold_untracked(g, ok) - np.median(g[ok], axis=0)
+        angle = np.arcsin(np.clip(g / IRIS_RADIUS, -1.0, 1.0))
+        yaw, pitch = outward * angle[:, 0], angle[:, 1]
+        look = np.stack([np.maximum(-yaw, 0) / LOOK_ANGLES["In"], np.maximum(yaw, 0) / LOOK_ANGLES["Out"],
+                         np.maximum(pitch, 0) / LOOK_ANGLES["Up"], np.maximum(-pitch, 0) / LOOK_ANGLES["Down"]], axis=1)
+        out.append(np.clip(median_filter(look, size=(3, 1), mode="nearest"), 0.0, 1.0))
+    return np.hstack(out)
+
+
 def direct_mapping(db: MotionDatabase) -> np.ndarray:
     """(16, L) the least-squares linear map from [controls, 1] to basis weights over the
     database's frames: the per-frame baseline (no segments, no filtering)."""
@@ -180,9 +217,10 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
     if smooth_head:
         pose[:, :3] = one_euro(pose[:, :3], tracking.fps, HEAD_MIN_CUTOFF, HEAD_BETA)
     blinks = blink_curves(tracking)
+    eyes = np.hstack([blinks, look_curves(tracking, blinks)])
     if raw:
         weights = np.c_[controls, np.ones(len(controls))] @ direct_mapping(db)
-        return Performance(tracking.fps, np.hstack([weights, weights, blinks]), pose, tracking.tracked.copy())
+        return Performance(tracking.fps, np.hstack([weights, weights, eyes]), pose, tracking.tracked.copy())
     t_video = np.arange(len(controls)) / tracking.fps
     resample = abs(tracking.fps - db.fps) > 1e-6 * db.fps
     if resample:
@@ -216,7 +254,7 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
     weights = np.hstack([lower, upper])
     if resample:
         weights = np.stack([np.interp(t_video, t_db, w) for w in weights.T], axis=1)
-    weights = np.hstack([weights, blinks])
+    weights = np.hstack([weights, eyes])
     settings = {"window": window, "k": k, "overlap": int(overlap), "delay": (int(overlap) - 1) / db.fps}
     return Performance(tracking.fps, weights, pose, tracking.tracked.copy(), settings)
 
@@ -225,16 +263,18 @@ def performance_rig(face: Face, db: MotionDatabase | None = None) -> Rig:
     """The face's rig for a motion database: each deformation basis retargeted once for the lower
     and once for the upper face (:func:`face_regions`), its lids left out, then the face's own
     ``eyeBlinkLeft`` and ``eyeBlinkRight`` (:func:`~faceanim.rig.arkit.blink_shapes`: they close
-    its eyes): 2L + 2 controls, ``lower_01`` ... ``upper_01`` ... and the two blinks, the columns of
+    its eyes) and ``eyeLook*`` (:func:`~faceanim.rig.arkit.look_shapes`): 2L + 10 controls,
+    ``lower_01`` ... ``upper_01`` ... and :data:`EYE_CONTROLS`, the columns of
     :attr:`Performance.weights`."""
-    from faceanim.rig.arkit import blink_shapes
+    from faceanim.rig.arkit import blink_shapes, look_shapes
 
     db = db or default_database()
     curves = np.array(db.basis_curves, dtype=np.float64)
     curves[:, [list(db.curve_names).index(n) for n in EYE_CURVES if n in db.curve_names]] = 0.0
     bases = retarget(face, curves, db.curve_names, regions=face_regions())
     shapes = {n: bases.blendshape(n) for n in bases.controls}
-    shapes.update(blink_shapes(face))
+    eyes = {**blink_shapes(face), **look_shapes(face)}
+    shapes.update({n: eyes[n] for n in EYE_CONTROLS})
     return Rig.from_blendshapes(face.mesh, shapes)
 
 
@@ -255,9 +295,8 @@ UPPER_ARKIT = ("Eye", "Brow")  # ARKit curves of the upper face; all others are 
 def arkit_curves(perf: Performance, db: MotionDatabase) -> np.ndarray:
     """(F, 52) ARKit curves (Live Link Face order) of a performance: the bases written as the
     generic head's shapes (ICT names), the eyes' and brows' from the upper face's weights and the
-    rest from the lower face's, mapped back to ARKit's names, the blinks as read off the lids
-    (:func:`blink_curves`), clamped to [0, 1]. The eyes' gaze
-    (``EyeLook*``) is 0: no marker sees the eyeballs."""
+    rest from the lower face's, mapped back to ARKit's names, the blinks and the gaze as read off
+    the lids and irises (:func:`blink_curves`, :func:`look_curves`), clamped to [0, 1]."""
     from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
 
     n_l = db.n_bases
@@ -269,8 +308,8 @@ def arkit_curves(perf: Performance, db: MotionDatabase) -> np.ndarray:
         parts = [col[n] for n in ict_name(name) if n in col]
         if parts:
             out[:, a] = (upper if name.startswith(UPPER_ARKIT) else lower)[:, parts].mean(axis=1)
-    for k, name in enumerate(("EyeBlinkLeft", "EyeBlinkRight")):
-        out[:, ARKIT_NAMES.index(name)] = perf.weights[:, 2 * n_l + k]
+    for k, name in enumerate(EYE_CONTROLS):
+        out[:, ARKIT_NAMES.index(name[0].upper() + name[1:])] = perf.weights[:, 2 * n_l + k]
     return np.clip(out, 0.0, 1.0)
 
 

@@ -278,6 +278,24 @@ def blink_shapes(face: Face, eyes: dict | None = None) -> dict[str, np.ndarray]:
     return out
 
 
+def look_shapes(face: Face, eyes: dict | None = None) -> dict[str, np.ndarray]:
+    """The eight ``eyeLook*`` shapes alone, as :func:`arkit_shapes` makes them (ICT's carried,
+    the lids following, plus the eyeballs turned), for drivers that need only the gaze."""
+    from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
+
+    columns = [c for c in ARKIT_NAMES if c.startswith("EyeLook")]
+    names = [n for c in columns for n in ict_name(c)]
+    ict = retarget(face, np.eye(len(names)), names, names=names)
+    out = {apple_name(c): sum(ict.blendshape(n) for n in ict_name(c)) for c in columns}
+    if eyes is None:
+        from faceanim.rig.mpeg4 import FapRig
+
+        eyes = {**registered_eyes(face), **{s: e for s, e in FapRig.build(face).eyes.items() if e is not None}}
+    for name, d in _look_shapes(face, eyes).items():
+        out[name] = out[name] + d
+    return out
+
+
 def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """ARKit's shapes on ``face``: :func:`arkit_rig`'s, with the ``eyeLook*`` shapes also turning
     the eyeballs ``eyes`` (:attr:`FapRig.eyes <faceanim.rig.mpeg4.FapRig>`; found when not given),

@@ -72,6 +72,7 @@ class Tracking:
     raw: np.ndarray
     controls: np.ndarray
     neutral: int
+    gaze: np.ndarray | None = None  # (F, 4): :func:`gaze_offsets` per frame, NaN where untracked
 
     @property
     def n_frames(self) -> int:
@@ -100,17 +101,36 @@ def euler_degrees(r: np.ndarray) -> tuple[float, float, float]:
     return float(yaw), float(pitch), float(roll)
 
 
-def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np.ndarray):
+# each eye: (outer corner, inner corner, iris centre), the subject's left eye first
+IRIS = ((263, 362, 473), (33, 133, 468))
+
+
+def gaze_offsets(frontal: np.ndarray) -> np.ndarray:
+    """(4,) where each iris sits in its eye, fronto-parallel: the left eye's horizontal and
+    vertical offsets, then the right's, from the middle of the eye's corners, in eye widths
+    (x to the subject's left, y up)."""
+    out = []
+    for outer, inner, iris in IRIS:
+        mid = 0.5 * (frontal[outer, :2] + frontal[inner, :2])
+        width = abs(frontal[outer, 0] - frontal[inner, 0])
+        out.extend((frontal[iris, :2] - mid) / max(width, 1e-12))
+    return np.array(out)
+
+
+def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np.ndarray, gaze: bool = False):
     """Head pose (6,) and fronto-parallel features (19, 2) from one frame's 478 landmarks in
     pixels with depth ((x right, y down, z away from the camera), as MediaPipe reports them
-    scaled by the image width)."""
+    scaled by the image width); with ``gaze``, also the irises' :func:`gaze_offsets`."""
     q = landmarks_px * np.array([1.0, -1.0, -1.0])  # camera coordinates: y up, z towards the camera
     s, r, t = similarity(reference[rigid], q[rigid])
     yaw, pitch, roll = euler_degrees(r)
     frontal = ((q - t) @ r) / s  # back into the generic head's frame
     idx = [FEATURES[n] for n in FEATURE_NAMES]
     anchor = landmarks_px[168, :2]  # the nose bridge: where the head is in the picture
-    return np.array([yaw, pitch, roll, anchor[0], anchor[1], s]), frontal[idx, :2]
+    pose = np.array([yaw, pitch, roll, anchor[0], anchor[1], s])
+    if gaze:
+        return pose, frontal[idx, :2], gaze_offsets(frontal)
+    return pose, frontal[idx, :2]
 
 
 def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | None = None,
@@ -128,7 +148,7 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
         raise LandmarkError("video tracking needs mediapipe==0.10.21 (pip install mediapipe==0.10.21)") from None
     reference = generic_head().landmarks()
     rigid = rigid_landmarks()
-    pose, feats, raw, tracked = [], [], [], []
+    pose, feats, raw, tracked, gaze = [], [], [], [], []
     with native_stderr_quiet(), mp.solutions.face_mesh.FaceMesh(
             static_image_mode=False, max_num_faces=1, refine_landmarks=True,
             min_detection_confidence=0.5, min_tracking_confidence=0.5) as fm:
@@ -137,15 +157,17 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
             result = fm.process(np.ascontiguousarray(frame))
             if result.multi_face_landmarks:
                 lm = np.array([[p.x * w, p.y * h, p.z * w] for p in result.multi_face_landmarks[0].landmark])
-                p6, f19 = pose_and_features(lm, rigid, reference)
+                p6, f19, g4 = pose_and_features(lm, rigid, reference, gaze=True)
                 pose.append(p6)
                 feats.append(f19)
+                gaze.append(g4)
                 raw.append(control_parameters(f19))
                 tracked.append(True)
             else:
                 pose.append(np.full(6, np.nan))
                 feats.append(np.full((19, 2), np.nan))
                 raw.append(np.full(15, np.nan))
+                gaze.append(np.full(4, np.nan))
                 tracked.append(False)
             if progress is not None:
                 progress.update(1)
@@ -163,7 +185,8 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
             raise LandmarkError(f"no face was found in frame {neutral}; give a frame where the face is seen "
                                 "as --neutral-frame")
         reference = raw[neutral]
-    return Tracking(float(fps), tracked, pose, feats, raw, normalise(raw, reference, feats[neutral]), neutral)
+    return Tracking(float(fps), tracked, pose, feats, raw, normalise(raw, reference, feats[neutral]), neutral,
+                    np.array(gaze))
 
 
 def track_video(path, neutral_frame: int | None = None, progress=None) -> Tracking:
