@@ -88,7 +88,7 @@ def main() -> None:
     curves = db.basis_curves.copy()
     curves[:, [list(db.curve_names).index(c) for c in EYE_CURVES]] = 0.0  # the lids are the blinks' own
     shapes = np.stack([head.shape(n) for n in db.curve_names])  # (C, Vs, 3)
-    blinks = np.stack([rig.blendshape(n) for n in EYE_CONTROLS])  # (2, V, 3), as the rig has them
+    eyes = np.stack([rig.blendshape(n) for n in EYE_CONTROLS])  # (10, V, 3): blinks and gaze, as the rig has them
 
     n_l = db.n_bases
 
@@ -96,7 +96,7 @@ def main() -> None:
         motion = (np.einsum("fc,cvd->fvd", w[:, :n_l] @ curves, shapes) * regions["lower"][None, :, None]
                   + np.einsum("fc,cvd->fvd", w[:, n_l:2 * n_l] @ curves, shapes) * regions["upper"][None, :, None])
         at = np.einsum("vc,fvcd->fvd", bary, motion[:, corners])
-        return face.mesh.vertices + np.einsum("vij,fvj->fvi", jac, at) + np.einsum("fk,kvd->fvd", w[:, 2 * n_l:], blinks)
+        return face.mesh.vertices + np.einsum("vij,fvj->fvi", jac, at) + np.einsum("fk,kvd->fvd", w[:, 2 * n_l:], eyes)
 
     batch = weights[:100]
     check = np.abs(per_vertex(one)[0] - rig.evaluate(one)[0]).max()
