@@ -219,8 +219,9 @@ def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.nda
     eye). The opening is found in the front view (:func:`eye_opening`), at rest and as the carried
     blink leaves it; in each column where the lids still part, the upper lid comes down
     :data:`LID_MEET` of the gap and the lower lid rises the rest, so they meet on a line between
-    their arcs (meeting on the lower arc draws the closed lid into a sagging V). Each lid (the skin on its side of the eye's middle and what rides on it, such as lashes
-    or an eyeline plate; not the eyes) moves by its column's share, interpolated across the eye:
+    their arcs (meeting on the lower arc draws the closed lid into a sagging V). Each lid (the
+    skin on its side of the eye's middle and what rides on it, such as lashes or an eyeline
+    plate; not the eyes) moves by its column's share, interpolated across the eye:
     fully up to its margin, fading to nothing above (below) it over :data:`LID_REACH` slit widths
     (the upper lid) or a third of that (the lower): a sheet drawn over the eye, no lumps. The
     lids move down the face only, at the depth the carried blink leaves them: the whole 3D gap
