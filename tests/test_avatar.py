@@ -427,14 +427,13 @@ def test_vroid_blinks_close_its_anime_eyes():
     from faceanim.autorig import auto_rig
     from faceanim.avatar import avatar_face, find_head
     from faceanim.io.scene import read_scene
-    from faceanim.rig.arkit import eye_opening, registered_eyes
-    from faceanim.rig.mpeg4 import FapRig
+    from faceanim.rig.arkit import eye_opening, face_eyes
 
     scene = read_scene(VROID)
     head, companions = find_head(scene)
     face, _ = avatar_face(scene, [head] + companions)
     shapes = auto_rig(face, ["arkit"]).shapes
-    eyes = {**registered_eyes(face), **{s: e for s, e in FapRig.build(face).eyes.items() if e is not None}}
+    eyes = face_eyes(face)
     for slit, name in (("eye_L", "eyeBlinkLeft"), ("eye_R", "eyeBlinkRight")):
         rest = eye_opening(face, slit, eyes).area
         shut = eye_opening(face, slit, eyes, face.mesh.vertices + shapes[name])

@@ -308,8 +308,7 @@ def test_a_blink_closes_the_eye(which):
     from faceanim.face.face import landmarks_478
     from faceanim.face.landmarks import detect_landmarks
     from faceanim.io.meshio import load_mesh
-    from faceanim.rig.arkit import arkit_shapes, eye_opening, registered_eyes
-    from faceanim.rig.mpeg4 import FapRig
+    from faceanim.rig.arkit import arkit_shapes, eye_opening, face_eyes
 
     if which == "default":
         face = Face.default()
@@ -319,7 +318,7 @@ def test_a_blink_closes_the_eye(which):
         mesh = load_mesh(FW / "pose_0.obj")
         face = Face(mesh, landmarks_478(mesh, detect_landmarks(mesh)))
     shapes, _ = arkit_shapes(face)
-    eyes = {**registered_eyes(face), **{s: e for s, e in FapRig.build(face).eyes.items() if e is not None}}
+    eyes = face_eyes(face)
     for slit, name in (("eye_L", "eyeBlinkLeft"), ("eye_R", "eyeBlinkRight")):
         rest = eye_opening(face, slit, eyes).area
         shut = eye_opening(face, slit, eyes, face.mesh.vertices + shapes[name])

@@ -111,9 +111,9 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
     arkit = au_rig = None  # made once, for the sets that share them
     eyes = dict(fap.eyes) if fap is not None else {}
     if {"arkit", "visemes"} & set(sets):  # eye plates (anime) turn too: the look presets apply
-        from faceanim.rig.arkit import registered_eyes
+        from faceanim.rig.arkit import face_eyes
 
-        eyes = {**registered_eyes(face), **{s: e for s, e in eyes.items() if e is not None}}
+        eyes = face_eyes(face, eyes)
     rest = face.mesh.vertices
     shapes: dict[str, np.ndarray] = {}
     groups: dict[str, list[str]] = {}

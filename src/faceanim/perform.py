@@ -266,14 +266,15 @@ def performance_rig(face: Face, db: MotionDatabase | None = None) -> Rig:
     its eyes) and ``eyeLook*`` (:func:`~faceanim.rig.arkit.look_shapes`): 2L + 10 controls,
     ``lower_01`` ... ``upper_01`` ... and :data:`EYE_CONTROLS`, the columns of
     :attr:`Performance.weights`."""
-    from faceanim.rig.arkit import blink_shapes, look_shapes
+    from faceanim.rig.arkit import blink_shapes, face_eyes, look_shapes
 
     db = db or default_database()
     curves = np.array(db.basis_curves, dtype=np.float64)
     curves[:, [list(db.curve_names).index(n) for n in EYE_CURVES if n in db.curve_names]] = 0.0
     bases = retarget(face, curves, db.curve_names, regions=face_regions())
     shapes = {n: bases.blendshape(n) for n in bases.controls}
-    eyes = {**blink_shapes(face), **look_shapes(face)}
+    pieces = face_eyes(face)  # found once for both
+    eyes = {**blink_shapes(face, pieces), **look_shapes(face, pieces)}
     shapes.update({n: eyes[n] for n in EYE_CONTROLS})
     return Rig.from_blendshapes(face.mesh, shapes)
 

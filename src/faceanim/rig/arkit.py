@@ -120,6 +120,17 @@ def registered_eyes(face: Face) -> dict:
     return out
 
 
+def face_eyes(face: Face, fap_eyes: dict | None = None) -> dict:
+    """Every eye piece of ``face``: :func:`registered_eyes` (balls and plates found through the
+    registration) with the FAP rig's eyeballs over them (``fap_eyes``,
+    :attr:`FapRig.eyes <faceanim.rig.mpeg4.FapRig>`; built when not given). Side -> (rows, centre)."""
+    if fap_eyes is None:
+        from faceanim.rig.mpeg4 import FapRig
+
+        fap_eyes = FapRig.build(face).eyes
+    return {**registered_eyes(face), **{s: e for s, e in fap_eyes.items() if e is not None}}
+
+
 LID_REACH = 0.6  # the closure correction fades out this far above the upper lid's margin (slit widths)
 LID_STRETCH = 1.2  # the upper lid's band that stretches is at least this many times the largest gap tall
 LID_MEET = 0.75  # the share of the gap the upper lid travels; the lower lid rises the rest
@@ -268,10 +279,10 @@ def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.nda
 def blink_shapes(face: Face, eyes: dict | None = None) -> dict[str, np.ndarray]:
     """``eyeBlinkLeft`` and ``eyeBlinkRight`` alone, as :func:`arkit_shapes` makes them (ICT's
     blinks carried, then closed by :func:`_lid_closure`), for drivers that need only the lids.
-    ``eyes``: the eye pieces (found through the registration when not given)."""
+    ``eyes``: the eye pieces (:func:`face_eyes` when not given)."""
     names = ["eyeBlink_L", "eyeBlink_R"]
     ict = retarget(face, np.eye(2), names, names=names)
-    eyes = registered_eyes(face) if eyes is None else eyes
+    eyes = face_eyes(face) if eyes is None else eyes
     out = {}
     for slit, ict_name_, name in (("eye_L", "eyeBlink_L", "eyeBlinkLeft"), ("eye_R", "eyeBlink_R", "eyeBlinkRight")):
         d = ict.blendshape(ict_name_)
@@ -288,11 +299,7 @@ def look_shapes(face: Face, eyes: dict | None = None) -> dict[str, np.ndarray]:
     names = [n for c in columns for n in ict_name(c)]
     ict = retarget(face, np.eye(len(names)), names, names=names)
     out = {apple_name(c): sum(ict.blendshape(n) for n in ict_name(c)) for c in columns}
-    if eyes is None:
-        from faceanim.rig.mpeg4 import FapRig
-
-        eyes = {**registered_eyes(face), **{s: e for s, e in FapRig.build(face).eyes.items() if e is not None}}
-    for name, d in _look_shapes(face, eyes).items():
+    for name, d in _look_shapes(face, face_eyes(face) if eyes is None else eyes).items():
         out[name] = out[name] + d
     return out
 
@@ -301,11 +308,7 @@ def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.nda
     """ARKit's shapes on ``face``: :func:`arkit_rig`'s, with the ``eyeLook*`` shapes also turning
     the eyeballs ``eyes`` (:attr:`FapRig.eyes <faceanim.rig.mpeg4.FapRig>`; found when not given),
     and the names it cannot make, with why."""
-    if eyes is None:
-        from faceanim.rig.mpeg4 import FapRig
-
-        eyes = FapRig.build(face).eyes
-    eyes = {**registered_eyes(face), **{s: e for s, e in eyes.items() if e is not None}}
+    eyes = face_eyes(face, eyes)
     rig, missing = arkit_rig(face)
     shapes = {n: rig.blendshape(n) for n in rig.controls}
     for name, d in _look_shapes(face, eyes).items():
