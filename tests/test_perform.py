@@ -452,3 +452,113 @@ def test_a_rendered_gaze_is_read_back():
     curves = dict(zip(EYE_CONTROLS[2:], look_curves(tr, blink_curves(tr))[35:45].mean(axis=0)))
     assert abs(curves.pop("eyeLookOutLeft") - 0.8) < 0.15 and abs(curves.pop("eyeLookInRight") - 0.8) < 0.15
     assert max(curves.values()) < 0.1, curves
+
+
+def _head_mouth(db, weights) -> np.ndarray:
+    """The mouth measures of basis weights (F, L) played on the whole generic head mesh (the
+    shapes summed on every vertex, the landmarks read off the moved mesh)."""
+    from faceanim.perform import MOUTH_LANDMARKS, mouth_measures
+
+    head = generic_head()
+    curves = np.asarray(weights) @ db.basis_curves
+    out = []
+    for c in curves:
+        v = head.mesh.vertices + sum(w * head.shape(n) for w, n in zip(c, db.curve_names))
+        out.append(mouth_measures(head.landmarks(v)[list(MOUTH_LANDMARKS)]))
+    return np.array(out)
+
+
+REST = 40  # frames of the head at rest before a tracking's motion
+
+
+def _mouth_tracking(db, frames):
+    """A tracking (fronto-parallel, in the generic head's units, as tracking makes them) of the
+    generic head's own mouth at rest for :data:`REST` frames, then doing what it does in
+    ``frames`` of the database; its controls are the database's."""
+    from faceanim.drivers.video.tracking import Tracking
+    from faceanim.face.controls import FEATURE_NAMES, FEATURES
+
+    head = generic_head()
+    curves = np.r_[np.zeros((REST, db.basis_curves.shape[1])), db.weights[frames] @ db.basis_curves]
+    lm = np.stack([head.landmarks(head.mesh.vertices + sum(w * head.shape(n) for w, n in zip(c, db.curve_names)))
+                   for c in curves])
+    n = len(curves)
+    feats = lm[:, [FEATURES[k] for k in FEATURE_NAMES], :2]
+    rest = np.repeat(db.controls[db.neutral][None], REST, axis=0)
+    return Tracking(30.0, np.ones(n, bool), np.zeros((n, 6)), feats, np.r_[rest, db.raw[frames]],
+                    np.r_[rest, db.controls[frames]], 0, np.zeros((n, 4)), lm[:, 13, 1] - lm[:, 14, 1])
+
+
+def test_database_mouth_is_the_head_played(db):
+    """The database's mouth measures per frame (read off the landmarks' share of each shape) are
+    those of the whole head mesh played with the frame's weights."""
+    from faceanim.perform import database_mouth
+
+    frames = [0, 700, 1500, 2300, db.n_frames - 1]
+    np.testing.assert_allclose(database_mouth(db)[frames], _head_mouth(db, db.weights[frames]), atol=1e-9)
+
+
+def test_performer_mouth_in_the_heads_units(db):
+    """A performer whose mouth rests, then does what the generic head's does in some database
+    frames: their mouth measures come back as the head's own in those frames (the width and smile
+    from the mouth at rest, found by its stillness; the gap whole), with or without the inner gap
+    tracked (without: from the outer lips' change)."""
+    from faceanim.perform import database_mouth, performer_mouth, rest_frames
+
+    frames = [300, 900, 1500, 2100, 2101, 2102, 2103, 2104, 2105, 2106]
+    tr = _mouth_tracking(db, frames)
+    assert set(rest_frames(performer_mouth(tr))) <= set(range(REST))
+    want = database_mouth(db)[frames]
+    np.testing.assert_allclose(performer_mouth(tr)[REST:], want, atol=1e-9)
+    tr.inner_gap = None
+    outer = performer_mouth(tr)
+    np.testing.assert_allclose(outer[REST:, 1:], want[:, 1:], atol=1e-9)
+    assert np.corrcoef(outer[REST:, 0], want[:, 0])[0, 1] > 0.9
+
+
+def test_the_synthesised_mouth_is_held_to_the_performers(db):
+    """A stretch of the database's own motion as a tracking (its controls, and the head's mouth in
+    those frames): with the mouth followed, the lower face's mouth measures (played on the whole
+    head) come within a tenth of their spread of the truth, several times nearer than the K
+    blended neighbours alone."""
+    from faceanim.perform import database_mouth, perform
+
+    frames = np.arange(1000, 1120)
+    tr = _mouth_tracking(db, frames)
+    truth = database_mouth(db)[frames]
+    spread = database_mouth(db).std(axis=0)
+    n_l = db.n_bases
+    held = _head_mouth(db, perform(tr, db).weights[REST:, :n_l])
+    free = _head_mouth(db, perform(tr, db, follow_mouth=False).weights[REST:, :n_l])
+    e_held = np.abs(held - truth).mean(axis=0) / spread
+    e_free = np.abs(free - truth).mean(axis=0) / spread
+    assert np.all(e_held < 0.1), e_held
+    assert np.all(e_held < 0.5 * e_free), (e_held, e_free)
+
+
+@needs_videos
+def test_the_avatar_lips_open_as_the_performers_on_a_held_out_clip(db):
+    """d14 (held out from the tuning; a woman talking): the default face's inner lip gap under
+    perform follows the gap tracked in the video (r > 0.85; 0.48 before the mouth was followed)
+    with a p5-p95 range 0.8-1.25 of the performer's (the issue's goals), both in the generic head's
+    units (the face's scaled by its eyes' distance over the head's)."""
+    from faceanim.drivers.video.tracking import track_video
+    from faceanim.perform import MOUTH_LANDMARKS, mouth_measures, perform, performance_rig, performer_mouth
+
+    tr = track_video(VIDEOS / "d14.mp4")
+    face = Face.default()
+    rig = performance_rig(face, db)
+    head = generic_head()
+    frame = face.frame.rotation  # rows: the face's left, up, forward
+
+    def mouth(vertices):
+        return mouth_measures(head.landmarks(vertices)[list(MOUTH_LANDMARKS)] @ frame.T)
+
+    lm = head.landmarks()
+    scale = np.linalg.norm(lm[33] - lm[263]) / face.frame.iod
+    avatar = np.array([mouth(v)[0] for v in rig.evaluate(perform(tr, db).weights)]) * scale
+    video = performer_mouth(tr)[:, 0]
+    ok = tr.tracked
+    r = np.corrcoef(avatar[ok], video[ok])[0, 1]
+    span = np.subtract(*np.percentile(avatar[ok], [95, 5])) / np.subtract(*np.percentile(video[ok], [95, 5]))
+    assert r > 0.85 and 0.8 < span < 1.25, (r, span)

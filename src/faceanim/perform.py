@@ -57,6 +57,12 @@ IRIS_RADIUS = 0.26  # eye widths the iris offset (MediaPipe's, against the eye's
 #                    radian of the eye's turn, as sin: the default face rendered looking 0.46 rad to
 #                    its left and tracked moved its irises 0.10 and 0.13 eye widths
 GAZE_HOLD = 0.5  # while a lid is closed this far, the iris is not seen: the gaze holds
+# the mouth's measures the lower face's synthesis is held to (:func:`mouth_measures`): K blended
+# neighbours searched on three controls came out with the lip gap 0.42-0.88 of the performer's and
+# correlated 0.48-0.67 with it on two held-out clips (scripts/eval_motion.py); the synthesised face
+# keeps the database's shapes and is moved along the database's own motion to these values
+MOUTH_MEASURES = ("inner_gap", "mouth_width", "smile")
+MOUTH_LANDMARKS = (13, 14, 61, 291, 0, 17)  # inner lips' middle, corners, outer lips' middle
 REGION_EDGE = 0.02  # metres: the lower and upper face blend over this band at the subnasale
 HEAD_MIN_CUTOFF, HEAD_BETA = 0.5, 0.05  # One-Euro on the head's angles (Hz; per degree/second)
 
@@ -173,6 +179,74 @@ def look_curves(tracking: Tracking, blinks: np.ndarray) -> np.ndarray:
     return np.hstack(out)
 
 
+def mouth_measures(points: np.ndarray) -> np.ndarray:
+    """(..., 3) :data:`MOUTH_MEASURES` of (..., 6, 2+) fronto-parallel points at
+    :data:`MOUTH_LANDMARKS` (x the face's left, y up): the inner lips' gap, the corners' distance,
+    and the smile (the corners' height over the middle of the outer lips)."""
+    p = np.asarray(points, dtype=np.float64)
+    gap = p[..., 0, 1] - p[..., 1, 1]
+    width = np.abs(p[..., 3, 0] - p[..., 2, 0])
+    smile = 0.5 * (p[..., 2, 1] + p[..., 3, 1]) - 0.5 * (p[..., 4, 1] + p[..., 5, 1])
+    return np.stack([gap, width, smile], axis=-1)
+
+
+def database_mouth(db: MotionDatabase) -> np.ndarray:
+    """(F, 3) :func:`mouth_measures` of every database frame on the generic head: its neutral
+    landmarks moved by the frame's motion written as the head's shapes (``weights`` times
+    ``basis_curves``), in the head's metres."""
+    from faceanim.face.generic_head import generic_head
+
+    head = generic_head()
+    lmat = head.landmark_matrix()[list(MOUTH_LANDMARKS)]
+    deltas = np.stack([lmat @ head.shape(n) for n in db.curve_names])  # (C, 6, 3)
+    points = head.landmarks()[list(MOUTH_LANDMARKS)][None] + np.einsum(
+        "fc,ckd->fkd", db.weights @ db.basis_curves, deltas)
+    return mouth_measures(points)
+
+
+REST_SHARE = 0.2  # the performer's mouth at rest: its stillest fifth of the frames
+
+
+def rest_frames(values: np.ndarray, share: float = REST_SHARE) -> np.ndarray:
+    """Indices of the frames where (F, n) ``values`` (NaN-free) move least: each frame's summed
+    change to the next (each value in units of its median change), averaged over 9 frames around
+    it; the stillest ``share`` of the frames, in time order."""
+    from scipy.ndimage import uniform_filter1d
+
+    v = np.asarray(values, dtype=np.float64)
+    if len(v) < 2:
+        return np.arange(len(v))
+    d = np.abs(np.diff(v, axis=0))
+    unit = np.median(d, axis=0)
+    speed = np.r_[0.0, (d / np.where(unit > 0, unit, 1.0)).sum(axis=1)]
+    speed[0] = speed[1]
+    local = uniform_filter1d(speed, 9, mode="nearest")
+    return np.sort(np.argsort(local, kind="stable")[:max(1, int(round(share * len(v))))])
+
+
+def performer_mouth(tracking: Tracking) -> np.ndarray:
+    """(F, 3) the performer's :func:`mouth_measures` for the generic head: the inner gap whole
+    (about 0 with the lips together, on both; from the outer lips' change when the tracking has no
+    inner gap), the width and the smile as their change from the performer's mouth at rest (the
+    median over :func:`rest_frames`: one frame is noisy, and the neutral frame is picked for the
+    whole face) added to the head's neutral. The features are already in the generic head's units
+    (the head's size taken out by the rigid landmarks). Untracked frames hold the last tracked
+    value."""
+    from faceanim.face.controls import FEATURE_NAMES
+    from faceanim.face.generic_head import generic_head
+
+    rest = mouth_measures(generic_head().landmarks()[list(MOUTH_LANDMARKS)])
+    at = [FEATURE_NAMES.index(n) for n in ("mouth_corner_R", "mouth_corner_L", "upper_lip", "lower_lip")]
+    f = hold_untracked(tracking.features[:, at].reshape(tracking.n_frames, -1), tracking.tracked).reshape(-1, 4, 2)
+    m = mouth_measures(np.concatenate([np.zeros_like(f[:, :2]), f], axis=1))  # no inner lips among the features
+    m[:, 0] = f[:, 2, 1] - f[:, 3, 1]  # the outer lips' distance
+    still = rest_frames(m)
+    out = rest + m - np.median(m[still], axis=0)
+    if tracking.inner_gap is not None and np.isfinite(tracking.inner_gap[tracking.tracked]).all():
+        out[:, 0] = hold_untracked(tracking.inner_gap[:, None], tracking.tracked)[:, 0]
+    return out
+
+
 def direct_mapping(db: MotionDatabase) -> np.ndarray:
     """(16, L) the least-squares linear map from [controls, 1] to basis weights over the
     database's frames: the per-frame baseline (no segments, no filtering)."""
@@ -196,7 +270,7 @@ def face_regions() -> dict[str, np.ndarray]:
 
 def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = False, window: int = WINDOW,
             k: int = K, overlap: int = OVERLAP, search: str = "kdtree", whole_face: bool = False,
-            smooth_head: bool = True) -> Performance:
+            smooth_head: bool = True, follow_mouth: bool = True) -> Performance:
     """The performance of a tracked video on a motion database (the shipped one by default):
     filtered and synthesised from segments of ``window`` frames, ``k`` neighbours, blended over
     ``overlap`` frames (delay ``overlap - 1`` database frames), or mapped frame by frame with
@@ -204,7 +278,12 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
 
     Synthesis is feature-wise: the lower face from a search on :data:`LOWER_FACE`, the upper face
     from one on :data:`UPPER_FACE` (each basis is split between them, :func:`face_regions`);
-    ``whole_face`` makes one search on all 15 controls, as the paper does. Controls are compared
+    ``whole_face`` makes one search on all 15 controls, as the paper does. With ``follow_mouth``
+    (feature-wise only), the lower face is then held to the performer's mouth: the synthesis also
+    gives each frame's :func:`mouth_measures` (the database's, blended alike), and the lower face's
+    weights move by the difference to the performer's (:func:`performer_mouth`, held to the
+    database's range) along the database's own motion (the least-squares map from the three
+    measures to basis weights over its frames). Controls are compared
     in units of their spread over the database and held to its range (0.5-99.5th percentile). A
     video at another frame rate than the database is resampled to it for the synthesis (segments
     are W of the database's frames) and back. The head's angles are smoothed by a One-Euro filter
@@ -242,20 +321,32 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
     n_segments = int(np.sum(np.maximum(lengths - window + 1, 0)))
     k = min(int(k), n_segments)  # a small database has fewer segments than K asks
 
-    def synthesise(cols):
-        synth = Synthesiser(known[:, cols], db.weights, window, k, 0.99, int(overlap), db.take_starts, search)
+    def synthesise(cols, markers):
+        synth = Synthesiser(known[:, cols], markers, window, k, 0.99, int(overlap), db.take_starts, search)
         return synth.synthesise(query[:, cols])
 
+    n_l = db.n_bases
+    follow = bool(follow_mouth) and not whole_face
     if whole_face:
-        lower = upper = synthesise(list(range(len(CONTROL_NAMES))))
+        lower = upper = synthesise(list(range(len(CONTROL_NAMES))), db.weights)
     else:
-        lower = synthesise([CONTROL_NAMES.index(n) for n in LOWER_FACE])
-        upper = synthesise([CONTROL_NAMES.index(n) for n in UPPER_FACE])
+        known_mouth = database_mouth(db)
+        spread = np.maximum(known_mouth.std(axis=0), 1e-12)
+        lower = synthesise([CONTROL_NAMES.index(n) for n in LOWER_FACE],
+                           np.hstack([db.weights, known_mouth / spread]) if follow else db.weights)
+        upper = synthesise([CONTROL_NAMES.index(n) for n in UPPER_FACE], db.weights)
     weights = np.hstack([lower, upper])
     if resample:
         weights = np.stack([np.interp(t_video, t_db, w) for w in weights.T], axis=1)
+    if follow:
+        lo_m, hi_m = np.percentile(known_mouth, [0.5, 99.5], axis=0)
+        target = np.clip(performer_mouth(tracking), lo_m, hi_m) / spread
+        along, *_ = np.linalg.lstsq(np.c_[known_mouth / spread, np.ones(db.n_frames)], db.weights, rcond=None)
+        got = weights[:, n_l:n_l + len(MOUTH_MEASURES)]
+        weights = np.hstack([weights[:, :n_l] + (target - got) @ along[:-1], weights[:, n_l + len(MOUTH_MEASURES):]])
     weights = np.hstack([weights, eyes])
-    settings = {"window": window, "k": k, "overlap": int(overlap), "delay": (int(overlap) - 1) / db.fps}
+    settings = {"window": window, "k": k, "overlap": int(overlap), "delay": (int(overlap) - 1) / db.fps,
+                "follow_mouth": follow}
     return Performance(tracking.fps, weights, pose, tracking.tracked.copy(), settings)
 
 

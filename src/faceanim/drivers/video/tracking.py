@@ -73,6 +73,7 @@ class Tracking:
     controls: np.ndarray
     neutral: int
     gaze: np.ndarray | None = None  # (F, 4): :func:`gaze_offsets` per frame, NaN where untracked
+    inner_gap: np.ndarray | None = None  # (F,): :func:`inner_lip_gap` per frame, NaN where untracked
 
     @property
     def n_frames(self) -> int:
@@ -117,10 +118,21 @@ def gaze_offsets(frontal: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
+INNER_LIPS = (13, 14)  # the middle of the upper and the lower lip's inner line
+
+
+def inner_lip_gap(frontal: np.ndarray) -> float:
+    """The opening between the lips' inner lines at their middle, up the face (generic head
+    metres, fronto-parallel; about 0 with the lips together): the outer lip points of the 19
+    features also move when lips press, roll or pout with the mouth shut."""
+    return float(frontal[INNER_LIPS[0], 1] - frontal[INNER_LIPS[1], 1])
+
+
 def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np.ndarray, gaze: bool = False):
     """Head pose (6,) and fronto-parallel features (19, 2) from one frame's 478 landmarks in
     pixels with depth ((x right, y down, z away from the camera), as MediaPipe reports them
-    scaled by the image width); with ``gaze``, also the irises' :func:`gaze_offsets`."""
+    scaled by the image width); with ``gaze``, also the irises' :func:`gaze_offsets` and the
+    :func:`inner_lip_gap`."""
     q = landmarks_px * np.array([1.0, -1.0, -1.0])  # camera coordinates: y up, z towards the camera
     s, r, t = similarity(reference[rigid], q[rigid])
     yaw, pitch, roll = euler_degrees(r)
@@ -129,7 +141,7 @@ def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np
     anchor = landmarks_px[168, :2]  # the nose bridge: where the head is in the picture
     pose = np.array([yaw, pitch, roll, anchor[0], anchor[1], s])
     if gaze:
-        return pose, frontal[idx, :2], gaze_offsets(frontal)
+        return pose, frontal[idx, :2], gaze_offsets(frontal), inner_lip_gap(frontal)
     return pose, frontal[idx, :2]
 
 
@@ -148,7 +160,7 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
         raise LandmarkError("video tracking needs mediapipe==0.10.21 (pip install mediapipe==0.10.21)") from None
     reference = generic_head().landmarks()
     rigid = rigid_landmarks()
-    pose, feats, raw, tracked, gaze = [], [], [], [], []
+    pose, feats, raw, tracked, gaze, gap = [], [], [], [], [], []
     with native_stderr_quiet(), mp.solutions.face_mesh.FaceMesh(
             static_image_mode=False, max_num_faces=1, refine_landmarks=True,
             min_detection_confidence=0.5, min_tracking_confidence=0.5) as fm:
@@ -157,10 +169,11 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
             result = fm.process(np.ascontiguousarray(frame))
             if result.multi_face_landmarks:
                 lm = np.array([[p.x * w, p.y * h, p.z * w] for p in result.multi_face_landmarks[0].landmark])
-                p6, f19, g4 = pose_and_features(lm, rigid, reference, gaze=True)
+                p6, f19, g4, lips = pose_and_features(lm, rigid, reference, gaze=True)
                 pose.append(p6)
                 feats.append(f19)
                 gaze.append(g4)
+                gap.append(lips)
                 raw.append(control_parameters(f19))
                 tracked.append(True)
             else:
@@ -168,6 +181,7 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
                 feats.append(np.full((19, 2), np.nan))
                 raw.append(np.full(15, np.nan))
                 gaze.append(np.full(4, np.nan))
+                gap.append(np.nan)
                 tracked.append(False)
             if progress is not None:
                 progress.update(1)
@@ -186,7 +200,7 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
                                 "as --neutral-frame")
         reference = raw[neutral]
     return Tracking(float(fps), tracked, pose, feats, raw, normalise(raw, reference, feats[neutral]), neutral,
-                    np.array(gaze))
+                    np.array(gaze), np.array(gap))
 
 
 def track_video(path, neutral_frame: int | None = None, progress=None) -> Tracking:
