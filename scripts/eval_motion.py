@@ -27,7 +27,9 @@ the performer's, relative to each one's median, both floored at 5%: the goal is 
 Clips d0, d3, d9 are the tuning set, d10, d14, d18 the held-out set (``--clips`` to choose);
 the summary gives the median of each figure over each set.
 
-Usage (from /work/main): ``python scripts/eval_motion.py ../shared/data [--clips d10,d14] [--size 512]``
+Usage (from /work/main): ``python scripts/eval_motion.py ../shared/data [--clips d10,d14] [--size 512]
+[--sheets docs/figures/motion]`` (``--sheets``: a contact sheet per clip, the video beside the avatar
+at the deepest blink, the widest and the most rounded open mouth, and a still moment)
 """
 
 from __future__ import annotations
@@ -109,9 +111,9 @@ def measure_video(path: Path) -> tuple[np.ndarray, float]:
     return out, info.fps
 
 
-def measure_avatar(face, vertices_iter, size: int) -> tuple[np.ndarray, np.ndarray]:
+def measure_avatar(face, vertices_iter, size: int, keep=()) -> tuple[np.ndarray, np.ndarray]:
     """Render each frame's vertices from the front (the default face, textured) and measure; also
-    the neutral face's measures."""
+    the neutral face's measures. The renders of the frames in ``keep`` (a dict, filled) are kept."""
     from faceanim.face.landmarks import _face_frame
     from faceanim.render import OffscreenRenderer
 
@@ -123,8 +125,11 @@ def measure_avatar(face, vertices_iter, size: int) -> tuple[np.ndarray, np.ndarr
         neutral_img = r.render(face.mesh.vertices)
         for _ in range(5):  # settle the tracker on the neutral face first
             neutral = m(neutral_img)
-        for v in vertices_iter:
-            out.append(m(r.render(v)))
+        for k, v in enumerate(vertices_iter):
+            img = r.render(v)
+            if k in keep:
+                keep[k] = img
+            out.append(m(img))
     m.close()
     return np.array(out), neutral
 
@@ -167,7 +172,49 @@ def figures(perf: np.ndarray, av: np.ndarray, neutral: np.ndarray) -> dict:
     return out
 
 
-def run_clip(path: Path, face, size: int) -> dict:
+def sheet_frames(perf: np.ndarray) -> dict[str, int]:
+    """The performer's frames a contact sheet shows: the deepest blink, the widest open mouth, the
+    most rounded open mouth, and a still (neutral) moment."""
+    out = {}
+    eye, gap, rnd = perf[:, 3], perf[:, 0], perf[:, 2]
+    if np.isfinite(eye).any():
+        out["blink"] = int(np.nanargmin(eye))
+    if np.isfinite(gap).any():
+        out["open"] = int(np.nanargmax(gap))
+    if np.isfinite(rnd).sum() >= 5:
+        out["rounded"] = int(np.nanargmin(rnd))
+    ok = np.isfinite(perf[:, [0, 3]]).all(axis=1)
+    if ok.sum() >= 10:
+        out["neutral"] = int(still(perf, ok)[0])
+    return out
+
+
+def write_sheet(path: Path, video: Path, chosen: dict[str, int], renders: dict, height: int = 256) -> None:
+    """One row per chosen frame: the video frame beside the avatar's render, labelled."""
+    import cv2
+    import imageio.v3 as iio
+
+    from faceanim.io.video import video_frames, video_info
+
+    want = {k: None for k in chosen.values()}
+    for k, img in enumerate(video_frames(video_info(video))):
+        if k in want:
+            want[k] = img
+        if all(v is not None for v in want.values()):
+            break
+    rows = []
+    for label, k in chosen.items():
+        v, a = want[k], renders[k]
+        v = cv2.resize(v, (int(round(v.shape[1] * height / v.shape[0])), height), interpolation=cv2.INTER_AREA)
+        a = cv2.resize(a, (height, height), interpolation=cv2.INTER_AREA)
+        row = np.hstack([v, a]).copy()
+        cv2.putText(row, f"{label} (frame {k})", (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 0), 2)
+        rows.append(row)
+    width = max(r.shape[1] for r in rows)
+    iio.imwrite(path, np.vstack([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]))
+
+
+def run_clip(path: Path, face, size: int, sheets: Path | None = None) -> dict:
     from faceanim.drivers.video.tracking import track_video
     from faceanim.perform import default_database, perform, performance_rig
 
@@ -182,7 +229,11 @@ def run_clip(path: Path, face, size: int) -> dict:
         for a in range(0, performance.n_frames, CHUNK):
             yield from rig.evaluate(performance.weights[a:a + CHUNK])
 
-    av_m, neutral = measure_avatar(face, frames(), size)
+    chosen = sheet_frames(perf_m) if sheets else {}
+    renders = {k: None for k in chosen.values()}
+    av_m, neutral = measure_avatar(face, frames(), size, renders)
+    if sheets:
+        write_sheet(sheets / f"{path.stem}.png", path, chosen, renders)
     fig = figures(perf_m, av_m, neutral)
     fig["frames"] = len(perf_m)
     fig["seconds"] = time.perf_counter() - t
@@ -200,12 +251,16 @@ def main(argv=None) -> None:
     p.add_argument("data", type=Path, help="the shared data folder (../shared/data)")
     p.add_argument("--clips", default=",".join(TUNING + HELD_OUT), help="clip names (default: all six)")
     p.add_argument("--size", type=int, default=512, help="render size of the avatar (pixels)")
+    p.add_argument("--sheets", type=Path, help="write a contact sheet per clip into this folder (the video "
+                   "beside the avatar at its deepest blink, widest and most rounded mouth, and a still moment)")
     args = p.parse_args(argv)
     face = Face.default()
     results = {}
     for name in args.clips.split(","):
         path = args.data / "talking-head-videos" / f"{name}.mp4"
-        results[name] = run_clip(path, face, args.size)
+        if args.sheets:
+            args.sheets.mkdir(parents=True, exist_ok=True)
+        results[name] = run_clip(path, face, args.size, args.sheets)
         f = results[name]
         print(f"{name}: {f['frames']} frames, {f['seconds']:.0f} s; gap r {fmt(f['gap'].get('r'))} range "
               f"{fmt(f['gap'].get('range'))}; blink performer {fmt(f['eye']['blink performer'])} avatar "

@@ -288,3 +288,48 @@ def test_a_pickled_mesh_answers_closest_point_queries_as_before():
     again = pickle.loads(pickle.dumps(mesh)).closest_points(points, skin)
     for a, b in zip(before, again):
         assert np.array_equal(a, b)
+
+
+def _trimesh_first_hits(mesh, origins, direction):
+    """The oracle: trimesh's ray-triangle search, every hit, the nearest ahead of each origin."""
+    dirs = np.broadcast_to(direction, origins.shape)
+    locs, ray, _ = mesh.trimesh.ray.intersects_location(origins, dirs, multiple_hits=True)
+    t = ((locs - origins[ray]) * dirs[ray]).sum(1)
+    hit = np.zeros(len(origins), bool)
+    pos = np.full(origins.shape, np.nan)
+    order = np.lexsort((t, ray))
+    first = order[np.r_[True, np.diff(ray[order]) != 0]] if len(order) else order
+    hit[ray[first]] = True
+    pos[ray[first]] = locs[first]
+    return hit, pos
+
+
+@pytest.mark.parametrize("which", ["default", "sphere"])
+def test_parallel_rays_hit_what_trimesh_hits(which):
+    """Rays that all go one way (some starting inside the mesh, some beside it) meet the same first
+    surface points as trimesh's ray-triangle search, on the default face (open shells: eyes, teeth)
+    and on a closed sphere, looking along an oblique direction."""
+    import trimesh
+
+    from faceanim.face.face import Face
+
+    mesh = Face.default().mesh if which == "default" else Mesh(*(lambda s: (s.vertices, s.faces))(
+        trimesh.creation.icosphere(subdivisions=4)))
+    rng = np.random.default_rng(3)
+    d = np.array([0.2, -0.3, -1.0])
+    d /= np.linalg.norm(d)
+    lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
+    origins = rng.uniform(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo), (3000, 3)) - 0.2 * np.ptp(mesh.vertices) * d
+    want_hit, want_pos = _trimesh_first_hits(mesh, origins, d)
+    hit, pos, tri = mesh.cast_parallel(origins, d)
+    assert 500 < hit.sum() < 3000
+    np.testing.assert_array_equal(hit, want_hit)
+    np.testing.assert_allclose(pos[hit], want_pos[hit], atol=1e-9)
+    assert np.all(tri[~hit] == -1) and np.all(tri[hit] >= 0)
+    # the hit point lies on the triangle given
+    corners = mesh.vertices[mesh.faces[tri[hit]]]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    assert np.abs(np.einsum("ij,ij->i", pos[hit] - corners[:, 0], normal)).max() < 1e-9 * np.ptp(mesh.vertices) ** 2
+    # cast_rays takes this path for parallel rays and gives the same
+    same = mesh.cast_rays(origins, np.tile(d, (len(origins), 1)))
+    np.testing.assert_array_equal(same[2], tri)

@@ -214,10 +214,13 @@ class Mesh:
         return trimesh.triangles.points_to_barycentric(tri, np.atleast_2d(points))
 
     def cast_rays(self, origins, directions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """First hit of each ray: (hit mask (N,), positions (N, 3), triangle ids (N,), -1 on a miss)."""
+        """First hit of each ray: (hit mask (N,), positions (N, 3), triangle ids (N,), -1 on a miss).
+        Rays that all go one way (a front view) are cast by :meth:`cast_parallel`."""
         origins = np.atleast_2d(np.asarray(origins, dtype=np.float64))
         directions = np.atleast_2d(np.asarray(directions, dtype=np.float64))
         n = len(origins)
+        if n and np.ptp(directions / np.linalg.norm(directions, axis=1, keepdims=True), axis=0).max() < 1e-12:
+            return self.cast_parallel(origins, directions[0])
         locs, ray_idx, tri_idx = self.trimesh.ray.intersects_location(origins, directions, multiple_hits=True)
         hit = np.zeros(n, dtype=bool)
         pos = np.full((n, 3), np.nan)
@@ -229,6 +232,65 @@ class Mesh:
             hit[ray_idx[first]] = True
             pos[ray_idx[first]] = locs[first]
             tri[ray_idx[first]] = tri_idx[first]
+        return hit, pos, tri
+
+    def cast_parallel(self, origins, direction, chunk: int = 100_000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`cast_rays` for rays that all go along ``direction`` (3,): in the plane across
+        it each triangle covers the rays whose points lie inside it; the nearest such triangle
+        ahead of a ray's origin is its first hit. Tens of times faster than a ray-triangle search
+        for a front view (the triangles near the rays are found with a k-d tree of the rays)."""
+        from scipy.spatial import cKDTree
+
+        o = np.atleast_2d(np.asarray(origins, dtype=np.float64))
+        d = np.asarray(direction, dtype=np.float64).reshape(3)
+        d = d / np.linalg.norm(d)
+        n = len(o)
+        hit, pos, tri = np.zeros(n, dtype=bool), np.full((n, 3), np.nan), np.full(n, -1, dtype=np.int64)
+        if not n or not len(self.faces):
+            return hit, pos, tri
+        side = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+        side /= np.linalg.norm(side)
+        plane = np.column_stack([side, np.cross(d, side)])  # (3, 2): across the rays
+        v2, vt = self.vertices @ plane, self.vertices @ d
+        o2, ot = o @ plane, o @ d
+        lo, hi = o2.min(axis=0), o2.max(axis=0)
+        corners2 = v2[self.faces]  # (T, 3, 2)
+        tmin, tmax = corners2.min(axis=1), corners2.max(axis=1)
+        near = np.flatnonzero(np.all(tmax >= lo, axis=1) & np.all(tmin <= hi, axis=1)
+                              & (vt[self.faces].max(axis=1) >= ot.min()))
+        rays = cKDTree(o2)
+        best = np.full(n, np.inf)
+        for a in range(0, len(near), chunk):
+            t_ids = near[a:a + chunk]
+            centre = 0.5 * (tmin[t_ids] + tmax[t_ids])
+            radius = 0.5 * np.linalg.norm(tmax[t_ids] - tmin[t_ids], axis=1) * (1 + 1e-9) + 1e-12
+            lists = rays.query_ball_point(centre, radius, return_sorted=False)
+            counts = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
+            if not counts.sum():
+                continue
+            t_of = np.repeat(t_ids, counts)
+            r_of = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists if len(x)])
+            c = self.faces[t_of]
+            p0, e1, e2 = v2[c[:, 0]], v2[c[:, 1]] - v2[c[:, 0]], v2[c[:, 2]] - v2[c[:, 0]]
+            q = o2[r_of] - p0
+            den = e1[:, 0] * e2[:, 1] - e2[:, 0] * e1[:, 1]
+            ok = np.abs(den) > 1e-300
+            den = np.where(ok, den, 1.0)
+            s = (q[:, 0] * e2[:, 1] - e2[:, 0] * q[:, 1]) / den
+            t = (e1[:, 0] * q[:, 1] - q[:, 0] * e1[:, 1]) / den
+            eps = 1e-9
+            ok &= (s >= -eps) & (t >= -eps) & (s + t <= 1 + eps)
+            depth = vt[c[:, 0]] + s * (vt[c[:, 1]] - vt[c[:, 0]]) + t * (vt[c[:, 2]] - vt[c[:, 0]]) - ot[r_of]
+            ok &= depth >= 0
+            t_of, r_of, depth = t_of[ok], r_of[ok], depth[ok]
+            order = np.lexsort((t_of, depth, r_of))  # per ray the nearest (ties: the lower triangle id)
+            first = order[np.r_[True, np.diff(r_of[order]) != 0]] if len(order) else order
+            better = depth[first] < best[r_of[first]]
+            r_new = r_of[first][better]
+            best[r_new] = depth[first][better]
+            tri[r_new] = t_of[first][better]
+        hit = np.isfinite(best)
+        pos[hit] = o[hit] + best[hit, None] * d
         return hit, pos, tri
 
     # ------------------------------------------------------------------ variants
