@@ -134,7 +134,7 @@ def test_version_and_help(capsys):
     assert "(default: 25.0)" in text and ".mp4 .glb .fap" in text and "--face MESH" in text
 
 
-def test_say_to_glb_writes_its_sound_beside_and_names_morphs_by_fap(tmp_path, capsys):
+def test_say_to_glb_writes_its_sound_beside_and_names_morphs_by_arkit(tmp_path, capsys):
     import shutil
 
     import pygltflib
@@ -146,10 +146,12 @@ def test_say_to_glb_writes_its_sound_beside_and_names_morphs_by_fap(tmp_path, ca
     assert main(["say", "Hello, how are you?", "-o", str(tmp_path / "h.glb")]) == 0
     assert (tmp_path / "h.wav").read_bytes() == b"the user's own file"  # never replaced
     gltf = pygltflib.GLTF2().load(str(tmp_path / "h.glb"))
-    assert gltf.scenes[gltf.scene or 0].extras == {"audio": "h-1.wav"}
+    assert gltf.scenes[gltf.scene or 0].extras["audio"] == "h-1.wav"
     info = soundfile.info(str(tmp_path / "h-1.wav"))
     names = gltf.meshes[0].extras["targetNames"]
-    assert "open_jaw" in names and not any(n.startswith("fap") for n in names)
+    # the face's own ARKit shapes, by Apple's names, the mouth's among them
+    assert {"jawOpen", "mouthClose", "mouthFunnel", "mouthPucker"} <= set(names)
+    assert all(n[0].islower() and not n.startswith(("fap", "open_")) for n in names)
     # the animation and the sound are the same length (to a frame)
     times = gltf.accessors[gltf.animations[0].samplers[0].input]
     assert abs(times.max[0] - info.duration) < 0.1

@@ -229,12 +229,13 @@ def _fake_espeak(tmp_path, secret: str):
 def test_espeak_output_never_reaches_an_error(monkeypatch, tmp_path, caplog):
     import logging
 
-    from faceanim.drivers.speech import say_timed, synthesize
+    from faceanim.drivers.speech import synthesize
+    from faceanim.drivers.speech.phonemes import say_word_by_word
 
     secret = "root:x:0:0:root:/root:/bin/bash"
     monkeypatch.setenv("PATH", str(_fake_espeak(tmp_path, secret)))
     with caplog.at_level(logging.DEBUG, logger="faceanim.drivers.speech.phonemes"):
-        for fn in (synthesize, say_timed):
+        for fn in (synthesize, say_word_by_word):  # the espeak-ng program (say_timed uses it without the library)
             with pytest.raises(SpeechError) as err:
                 fn("hello", tmp_path / "x.wav", voice="en-us")
             assert secret not in str(err.value) and "root" not in str(err.value)
@@ -272,8 +273,32 @@ def test_say_timed_is_repeatable(tmp_path):
     xb, rb = read_audio(tmp_path / "b.wav")
     assert ra == rb == SAMPLE_RATE
     np.testing.assert_array_equal(xa, xb)
-    assert a[-1].phone == "SIL" and a[-1].end - a[-1].start == pytest.approx(0.4)  # the pause at '.'
+    comma = [p for p in a if p.phone == "SIL" and 0 < p.start and p.end < a[-1].end]
+    assert len(comma) == 1 and comma[0].end - comma[0].start > 0.1  # the pause at ','
     assert a[-1].end == pytest.approx(len(xa) / SAMPLE_RATE, abs=1e-3)  # phone times are the track's times
+    assert all(p.end > p.start for p in a) and all(q.start == pytest.approx(p.end) for p, q in zip(a, a[1:]))
+
+
+@has_espeak
+def test_said_phones_take_espeaks_own_time(tmp_path):
+    """The phones of a spoken sentence carry espeak-ng's own timing (not equal shares): the
+    dictionary's phones of "Peter Piper picked a peck", the words named, the vowels longer than
+    the stops on the whole, no two phones the same length throughout, and the sound as long as
+    the phones; speaking it again gives the same."""
+    from faceanim.drivers.speech import say_timed
+    from faceanim.drivers.speech.phonemes import SAMPLE_RATE
+    from faceanim.io.audio import read_audio
+
+    phones = say_timed("Peter Piper picked a peck", tmp_path / "p.wav")
+    spoken = [p for p in phones if p.phone != "SIL"]
+    assert [p.phone for p in spoken] == "P IY T ER P AY P ER P IH K T AH P EH K".split()
+    assert [p.word for p in spoken][:4] == ["peter"] * 4 and spoken[-1].word == "peck"
+    length = {p: [q.end - q.start for q in spoken if q.phone == p] for p in ("P", "T", "K", "IY", "AY", "IH", "EH")}
+    assert np.mean(length["AY"] + length["EH"] + length["IH"]) > 1.3 * np.mean(length["P"] + length["T"] + length["K"])
+    assert len({round(p.end - p.start, 3) for p in spoken}) > len(spoken) // 2
+    x, rate = read_audio(tmp_path / "p.wav")
+    assert rate == SAMPLE_RATE and phones[-1].end == pytest.approx(len(x) / rate, abs=1e-3)
+    assert say_timed("Peter Piper picked a peck", tmp_path / "q.wav") == phones
 
 
 @has_espeak

@@ -6,6 +6,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from faceanim.cli.common import (
     DEFAULT_SIZE,
     DURATION,
@@ -58,12 +60,89 @@ def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
         return [render_stream(rig, stream, out, face.view(), size=args.size, audio=audio, progress=bar)]
 
 
-def _cmd_say(args) -> None:
-    from faceanim.drivers.mpeg4 import Action, expression_faps
+def _say_phones(args, voice, tmp: Path) -> tuple[list, Path]:
+    """The timed phones of ``say``'s input and the sound they go with."""
     from faceanim.drivers.speech import align, say_timed
-    from faceanim.drivers.speech.visemes import speech_stream
-    from faceanim.rig.mpeg4 import FapRig
 
+    if args.audio:
+        from faceanim.io.files import read_text
+
+        wav = Path(args.audio)
+        if args.transcript:
+            return align(wav, read_text(args.transcript, "transcript")), wav
+        from faceanim.drivers.speech import recognise_phones  # no transcript: the phones as heard
+
+        return recognise_phones(wav), wav
+    wav = tmp / "speech.wav"
+    return say_timed(args.text, wav, voice=voice), wav
+
+
+def _say_fap(args, face, phones, wav) -> tuple[list[Path], int, float]:
+    """``say`` to a .fap file: MPEG-4's visemes as FAPs (Lee et al.), for any MPEG-4 player."""
+    from faceanim.drivers.mpeg4 import Action, expression_faps
+    from faceanim.drivers.speech.visemes import speech_stream
+    from faceanim.io.fapfile import write_fap
+
+    extra = []
+    if args.expression:
+        end = max(p.end for p in phones)
+        extra.append(Action(args.expression, expression_faps(args.expression), 0.0, end + 0.2,
+                            args.intensity, "linear", 0.1, 0.1, 0.3))
+    # a .fap file is for any face: MPEG-4's neutral face has closed lips, so no gap to close
+    stream = speech_stream(0.0, phones, args.fps, extra, name=Path(args.output).stem)
+    return [write_fap(args.output, stream)], stream.n_frames, stream.fps
+
+
+def _say_arkit(args, face, phones, wav) -> tuple[list[Path], int, float]:
+    """``say`` on the face's own ARKit shapes (:mod:`faceanim.drivers.speech.lipsync`): .glb (the
+    shapes used as morph targets by Apple's names, the weights animated, the sound beside it),
+    .mp4 (rendered with the sound) or .csv (Live Link Face)."""
+    from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
+    from faceanim.rig.arkit import arkit_shapes
+    from faceanim.rig.rig import Rig
+
+    out = Path(args.output)
+    suffix = out.suffix.lower()
+    shapes, _ = arkit_shapes(face)
+    rig = Rig.from_blendshapes(face.mesh, shapes)
+    names = list(rig.controls)
+    curves = lipsync_curves(phones, names, args.fps)
+    if args.expression:
+        curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),
+                         0.0, 1.0)
+    if suffix == ".csv":
+        from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
+        from faceanim.rig.arkit import apple_name
+
+        column = {n: k for k, n in enumerate(names)}
+        table = np.zeros((len(curves), len(ARKIT_NAMES)))
+        for a, name in enumerate(ARKIT_NAMES):
+            if apple_name(name) in column:
+                table[:, a] = curves[:, column[apple_name(name)]]
+        return [write_arkit_csv(out, table, args.fps, np.zeros((len(curves), 3)))], len(curves), args.fps
+    if suffix == ".glb":
+        from faceanim.io.audio import read_audio, write_wav
+        from faceanim.io.gltf import sound_companion, write_gltf
+
+        used = [k for k in range(len(names)) if curves[:, k].max() > 0]
+        companion = sound_companion(out)
+        glb = write_gltf(out, face.mesh, {names[k]: rig.blendshape(names[k]) for k in used},
+                         times=np.arange(len(curves)) / args.fps, weights=curves[:, used], animation_name=out.stem,
+                         quantize=args.compact, extras={"fps": args.fps, "audio": companion.name})
+        try:
+            samples, rate = read_audio(wav)
+            return [glb, write_wav(companion, samples, rate)], len(curves), args.fps
+        except BaseException:
+            glb.unlink(missing_ok=True)  # no half of the pair left behind
+            raise
+    from faceanim.player import render_curves
+
+    with progress(len(curves), f"rendering {out.name}", args.quiet) as bar:
+        return ([render_curves(rig, curves, out, args.fps, face.view(), size=args.size, audio=wav, progress=bar)],
+                len(curves), args.fps)
+
+
+def _cmd_say(args) -> None:
     if (args.text is None) == (args.audio is None):
         raise CommandError("give the text to say, or --audio clip.wav (with --transcript clip.txt if you have it)")
     voice = None
@@ -73,7 +152,9 @@ def _cmd_say(args) -> None:
         check_text(args.text)
         voice = check_voice(args.voice)
     if args.expression:
-        expression_faps(args.expression)  # an unknown name is refused before any work
+        from faceanim.drivers.speech.lipsync import expression_mix
+
+        expression_mix(args.expression)  # an unknown name is refused before any work
     check_video_size(args)
     check_outputs(args.output)
     if args.audio:
@@ -81,33 +162,12 @@ def _cmd_say(args) -> None:
 
         read_audio(args.audio, "recorded speech")
     face = load_face(args)
-    rig = FapRig.build(face)
     with tempfile.TemporaryDirectory() as tmp:
-        if args.audio:
-            from faceanim.io.files import read_text
-
-            wav = Path(args.audio)
-            if args.transcript:
-                phones = align(wav, read_text(args.transcript, "transcript"))
-            else:  # no transcript: the phones as heard
-                from faceanim.drivers.speech import recognise_phones
-
-                phones = recognise_phones(wav)
-        else:
-            wav = Path(tmp) / "speech.wav"
-            phones = say_timed(args.text, wav, voice=voice)
-        extra = []
-        if args.expression:
-            end = max(p.end for p in phones)
-            extra.append(Action(args.expression, expression_faps(args.expression), 0.0, end + 0.2,
-                                args.intensity, "linear", 0.1, 0.1, 0.3))
-        # a .fap file is for any face: MPEG-4's neutral face has closed lips, so no gap to close
-        lip_gap = 0.0 if Path(args.output).suffix.lower() == ".fap" else rig.lip_gap
-        stream = speech_stream(lip_gap, phones, args.fps, extra, name=Path(args.output).stem)
-        written = _write(args, rig, stream, face, wav)
+        phones, wav = _say_phones(args, voice, Path(tmp))
+        fap = Path(args.output).suffix.lower() == ".fap"
+        written, n_frames, fps = (_say_fap if fap else _say_arkit)(args, face, phones, wav)
     note_written(written)
-    print(f"wrote {', '.join(map(str, written))} ({stream.n_frames} frames, {len(phones)} phones, "
-          f"{stream.n_frames / stream.fps:.1f} s)")
+    print(f"wrote {', '.join(map(str, written))} ({n_frames} frames, {len(phones)} phones, {n_frames / fps:.1f} s)")
 
 
 def _cmd_fap_play(args) -> None:
@@ -215,13 +275,15 @@ def _video_options(p, suffixes) -> None:
 
 def register(sub) -> None:
     sy = sub.add_parser("say", help="lip-sync: text (synthesized) or recorded speech + transcript to an animated "
-                                    "face; .glb also writes the sound beside it (.wav)")
+                                    "face, on its ARKit shapes (.glb, .mp4, .csv) or as MPEG-4 visemes (.fap); "
+                                    ".glb also writes the sound beside it (.wav)")
     sy.add_argument("text", nargs="?", help="what to say (spoken by espeak-ng)")
     sy.add_argument("--audio", metavar="SOUND", help="recorded speech (WAV of any sample format, FLAC, OGG) instead of text")
     sy.add_argument("--transcript", metavar="TXT", help="text file with the words spoken in --audio (more exact "
                                                         "timing; without it the phones are recognised from the audio)")
     add_face(sy, positional=False)
-    sy.add_argument("--expression", help="an MPEG-4 expression held while speaking (joy, sadness, ...)")
+    sy.add_argument("--expression", help="an emotion held while speaking (joy, sadness, surprise, fear, anger, "
+                                         "disgust)")
     sy.add_argument("--intensity", type=INTENSITY, default=0.6, help="intensity of --expression (0..2)")
     sy.add_argument("--voice", default="en-us", help="espeak-ng voice (`espeak-ng --voices` lists them)")
     sy.add_argument("--fps", type=FPS, default=DEFAULT_FPS, help="frames per second (up to 240)")

@@ -327,6 +327,26 @@ def synthesize(text: str, wav_path, voice: str = DEFAULT_VOICE, speed: int = SEN
     return out
 
 
+# inherent phone durations (ms) after Klatt's duration rules (J. Acoust. Soc. Am. 1979; the MITalk
+# system): a word the aligner cannot time is shared among its phones in these proportions, so a
+# vowel outlasts the plosive before it instead of each phone taking an equal part
+INHERENT_MS = {
+    "AA": 240, "AE": 230, "AH": 140, "AO": 240, "AW": 260, "AY": 250, "EH": 150, "ER": 180, "EY": 190,
+    "IH": 135, "IY": 155, "OW": 220, "OY": 280, "UH": 160, "UW": 210,
+    "B": 85, "CH": 70, "D": 75, "DH": 50, "F": 100, "G": 80, "HH": 80, "JH": 70, "K": 80, "L": 80, "M": 70,
+    "N": 60, "NG": 95, "P": 85, "R": 80, "S": 105, "SH": 105, "T": 75, "TH": 90, "V": 60, "W": 80, "Y": 80,
+    "Z": 75, "ZH": 70,
+}
+
+
+def share_by_inherent_duration(pron: list[str], start: float, end: float, word: str = "") -> list[Phone]:
+    """Timed phones for ``pron`` (ARPAbet, stress digits allowed) spread over [start, end] in
+    proportion to their :data:`INHERENT_MS` (80 ms for a phone not in the table)."""
+    ms = np.array([INHERENT_MS.get(p.upper().rstrip("012"), 80) for p in pron], dtype=np.float64)
+    edges = start + (end - start) * np.r_[0.0, np.cumsum(ms)] / ms.sum()
+    return [Phone(p.upper().rstrip("012"), float(a), float(b), word) for p, a, b in zip(pron, edges[:-1], edges[1:])]
+
+
 PAUSES = {",": 0.2, ";": 0.25, ":": 0.25, ".": 0.4, "?": 0.4, "!": 0.4}
 WORD_GAP = 0.02
 
@@ -335,8 +355,138 @@ def _silence(seconds: float) -> np.ndarray:
     return np.zeros(round(seconds * SAMPLE_RATE), dtype=np.float32)
 
 
+# espeak-ng's phoneme mnemonics (English voices) as ARPAbet; a mnemonic with its marks (#, :, -,
+# digits) stripped is looked up again; one that is still unknown adds its time to the phone before
+ESPEAK_ARPABET = {
+    "p": "P", "b": "B", "t": "T", "d": "D", "k": "K", "g": "G", "f": "F", "v": "V", "T": "TH", "D": "DH",
+    "s": "S", "z": "Z", "S": "SH", "Z": "ZH", "tS": "CH", "dZ": "JH", "h": "HH", "x": "HH", "m": "M", "n": "N",
+    "N": "NG", "l": "L", "r": "R", "w": "W", "j": "Y", "?": "T", "t#": "T", "d#": "D",
+    "a": "AE", "a#": "AH", "A": "AA", "A:": "AA", "A@": "AA R", "0": "AA", "O": "AO", "O:": "AO", "O@": "AO R",
+    "o@": "AO R", "@": "AH", "@L": "AH L", "3": "ER", "3:": "ER", "V": "AH", "E": "EH", "e@": "EH R", "I": "IH",
+    "i": "IY", "i:": "IY", "i@": "IH R", "i@3": "IH R", "U": "UH", "u:": "UW", "U@": "UH R", "aI": "AY",
+    "aU": "AW", "OI": "OY", "eI": "EY", "oU": "OW", "aI@": "AY ER", "aI3": "AY ER", "aU@": "AW ER",
+    "e": "EH", "o": "OW", "u": "UW", "y": "UW",
+}
+STOPS = ("P", "B", "T", "D", "K", "G", "CH", "JH")
+CLOSURE = 0.045  # seconds of a stop's closure before its burst (espeak-ng times a stop from its burst)
+
+
+def _arpabet(mnemonic: str) -> list[str] | None:
+    if mnemonic.startswith("_") or mnemonic in ("", "||", "|"):
+        return ["SIL"]
+    for key in (mnemonic, mnemonic.strip("#:-;/,'!0123456789") or mnemonic):
+        if key in ESPEAK_ARPABET:
+            return ESPEAK_ARPABET[key].split()
+    return None
+
+
+def _library_speech(text: str, voice: str, speed: int) -> tuple[np.ndarray, int, list]:
+    """Run :mod:`faceanim.drivers.speech.espeak_lib` in a fresh process: the sound (float32) and
+    rate, and espeak-ng's events. OSError when espeak-ng's library is not there; espeak-ng's own
+    messages are never shown (logged at debug level)."""
+    import json
+    import sys
+    import tempfile
+
+    from faceanim.drivers.speech import espeak_lib
+
+    with tempfile.TemporaryDirectory() as tmp:
+        raw = Path(tmp) / "speech.raw"
+        try:
+            result = subprocess.run([sys.executable, espeak_lib.__file__, str(raw)], capture_output=True, text=True,
+                                    input=json.dumps({"text": text, "voice": voice, "rate": speed}), check=False,
+                                    timeout=ESPEAK_TIMEOUT)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            log.debug("espeak-ng's library could not be run: %s", exc)
+            raise SpeechError("espeak-ng could not be run; check it with `espeak-ng -v en-us hello`") from None
+        if result.returncode == 3:
+            raise OSError("espeak-ng's library is not available")
+        if result.stderr.strip():
+            log.debug("espeak-ng's library said: %s", result.stderr.strip())
+        try:
+            if result.returncode != 0:
+                raise ValueError(f"exit code {result.returncode}")
+            answer = json.loads(result.stdout)
+            rate, events = int(answer["rate"]), list(answer["events"])
+            x = np.fromfile(raw, dtype="<i2").astype(np.float32) / 32768.0
+        except (ValueError, KeyError, TypeError, OSError) as exc:
+            log.debug("espeak-ng's library failed: %s", exc)
+            raise SpeechError(f"espeak-ng could not synthesize speech with voice '{voice}'; "
+                              f"check it with `espeak-ng -v {voice} hello`") from None
+    return x, rate, events
+
+
+def espeak_phones(text: str, voice: str = DEFAULT_VOICE, speed: int = WORD_WPM) -> tuple[np.ndarray, int, list[Phone]]:
+    """Speak ``text`` with espeak-ng's library in one go (:mod:`~faceanim.drivers.speech.espeak_lib`)
+    and return the sound (float32, mono), its rate and the phones with espeak-ng's own timing: each phoneme from where its sound starts to
+    where the next one's does (a stop from :data:`CLOSURE` before its burst, as its lips or tongue
+    close before), as ARPAbet (:data:`ESPEAK_ARPABET`; a two-phone mnemonic such as a syllabic l
+    shared by :data:`INHERENT_MS`), pauses as ``SIL``, each with its word. Raises OSError when the
+    library cannot be loaded."""
+    check_text(text)
+    x, rate, events = _library_speech(text, check_voice(voice), check_speed(speed))
+    total = len(x) / rate
+    marks = [e for e in events if e[0] == "phoneme"]
+    starts = [e[2] / 1000.0 for e in marks] + [total]
+    words = [(e[2] / 1000.0, text.encode("utf-8")[max(e[1][0] - 1, 0):max(e[1][0] - 1, 0) + e[1][1]].decode("utf-8", "replace"))
+             for e in events if e[0] == "word"]
+    phones: list[Phone] = []
+    for k, (_, mnemonic, _) in enumerate(marks):
+        a, b = starts[k], max(starts[k + 1], starts[k])
+        if b <= a:
+            continue
+        names = _arpabet(mnemonic)
+        if names is None:
+            if phones:
+                last = phones[-1]
+                phones[-1] = Phone(last.phone, last.start, b, last.word)
+            continue
+        here = [w for t, w in words if t <= a + 1e-9]
+        word = here[-1].lower() if here and names != ["SIL"] else ""
+        phones += share_by_inherent_duration(names, a, b, word) if len(names) > 1 else [Phone(names[0], a, b, word)]
+    out: list[Phone] = []
+    for p in phones:  # a stop's closure: taken from the phone before it
+        if p.phone in STOPS and not out:
+            p = Phone(p.phone, max(0.0, p.start - CLOSURE), p.end, p.word)
+        elif p.phone in STOPS:
+            prev = out[-1]
+            # a pause gives the whole closure; a sound before it at most 40% of its length
+            cut = max(p.start - CLOSURE, prev.start + (0.0 if prev.phone == "SIL" else 0.6) * (p.start - prev.start))
+            out[-1] = Phone(prev.phone, prev.start, cut, prev.word)
+            p = Phone(p.phone, cut, p.end, p.word)
+        if out and out[-1].phone == "SIL" and p.phone == "SIL":
+            out[-1] = Phone("SIL", out[-1].start, p.end)
+            continue
+        out.append(p)
+    if not any(p.phone != "SIL" for p in out):
+        raise SpeechError("espeak-ng made no speech of the text; give words it can say")
+    return x, rate, out
+
+
 def say_timed(text: str, wav_path, voice: str = DEFAULT_VOICE, speed: int = WORD_WPM) -> list[Phone]:
-    """Speak ``text`` word by word with espeak-ng into one 16 kHz WAV and return its timed phones.
+    """Speak ``text`` with espeak-ng into one 16 kHz WAV and return its timed phones.
+
+    The whole text is spoken in one go by espeak-ng's library with its own phoneme timing
+    (:func:`espeak_phones`): one flowing utterance, each phone as long as espeak-ng makes it. Where
+    the library cannot be loaded, the words are spoken one by one by the espeak-ng program and each
+    is aligned (:func:`say_word_by_word`).
+    """
+    check_text(text)
+    speed = check_speed(speed)
+    exe = _espeak()
+    voice = check_voice(voice)
+    try:
+        x, rate, phones = espeak_phones(text, voice, speed)
+    except OSError:
+        return say_word_by_word(text, wav_path, voice, speed, exe)
+    write_wav(wav_path, resample(x, rate, SAMPLE_RATE), SAMPLE_RATE)
+    return phones
+
+
+def say_word_by_word(text: str, wav_path, voice: str = DEFAULT_VOICE, speed: int = WORD_WPM,
+                     exe: str | None = None) -> list[Phone]:
+    """Speak ``text`` word by word with the espeak-ng program into one 16 kHz WAV and return its
+    timed phones (without espeak-ng's library).
 
     Each word is synthesized alone and aligned alone (short and therefore robust: aligning a whole
     synthesized sentence fails on the robotic voice), then the words are joined with short gaps and
@@ -346,7 +496,7 @@ def say_timed(text: str, wav_path, voice: str = DEFAULT_VOICE, speed: int = WORD
 
     check_text(text)
     speed = check_speed(speed)
-    exe = _espeak()
+    exe = exe or _espeak()
     voice = check_voice(voice)
     tokens = re.findall(r"[A-Za-z0-9']+|[,;:.?!]", text)
     tokens = [t for t in tokens if t in PAUSES or t.strip("'")]
@@ -375,10 +525,8 @@ def say_timed(text: str, wav_path, voice: str = DEFAULT_VOICE, speed: int = WORD
                 word_phones = [p for p in align(x, word, SAMPLE_RATE, dec) if p.phone != "SIL"]
             except SpeechError:
                 word_phones = []
-            if not word_phones:  # spread the dictionary pronunciation evenly over the word
-                pron = dec.lookup_word(word).split()
-                step = len(x) / SAMPLE_RATE / len(pron)
-                word_phones = [Phone(ph, k * step, (k + 1) * step, word) for k, ph in enumerate(pron)]
+            if not word_phones:  # the dictionary pronunciation over the word by inherent durations
+                word_phones = share_by_inherent_duration(dec.lookup_word(word).split(), 0.0, len(x) / SAMPLE_RATE, word)
             phones += [Phone(p.phone, clock + p.start, clock + p.end, word) for p in word_phones]
             pieces.append(x)
             clock += len(x) / SAMPLE_RATE

@@ -1,0 +1,181 @@
+"""What does ``faceanim say`` make the mouth do? Strips, vowel classes and closures (issue 20).
+
+For each sentence the text is spoken (espeak-ng, timed per word as ``say`` does), the lip sync
+curves are made on the default face's ARKit shapes and the face is rendered from the front at
+every frame; the mouth is measured on the mesh at MediaPipe's landmark points (lip gap 13-14,
+mouth width 61-291, rounding = the inner lips' width 78-308 over their gap, in the generic head's
+units; the default face has the generic head's topology).
+
+- **Strip** (``--strips DIR``): the rendered face at the middle of each phone, labelled.
+- **Vowel classes**: the mouth at the middle of each vowel (a diphthong a third of the way in),
+  grouped as open (AA, AE, AY, AW), mid (AH, EH, ER, EY), spread (IY, IH), rounded (AO, OW, UW,
+  UH, OY) - the median gap, width and
+  rounding per class, and whether each pair of classes differs by more than the spread within
+  a class in at least one of the three.
+- **Closures**: every run of frames inside a word with the lips shut (gap under 0.1 of the
+  largest gap) longer than 80 ms where the phones under it are not p, b, m (a closure) or a pause.
+- ``--fap``: the same for the MPEG-4 viseme path (``say -o x.fap`` played on the FAP rig), the
+  one ``say`` used before.
+
+Usage (from /work/main): ``python scripts/eval_say.py [--strips docs/figures/say] [--fap]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+sys.path.insert(0, str(ROOT / "scripts"))
+
+SENTENCES = ("how now brown cow", "Peter Piper picked a peck of pickled peppers",
+             "the quick brown fox jumps over the lazy dog", "we do too, she said, you ought to see it")
+CLASSES = {"open": ("AA", "AE", "AY", "AW"), "mid": ("AH", "EH", "ER", "EY"), "spread": ("IY", "IH"),
+           "rounded": ("AO", "OW", "UW", "UH", "OY")}
+DIPHTHONGS = ("AW", "AY", "EY", "OW", "OY")  # measured in their first part (a third of the way in)
+CLOSURES = ("P", "B", "M", "SIL")
+FPS = 30.0
+SHUT = 0.1  # a gap under this share of the clip's largest is a closed mouth
+LONG = 0.08  # seconds: a closure longer than this inside a word needs a closing phone
+
+
+def curves_arkit(face, phones, n):
+    from faceanim.drivers.speech.lipsync import lipsync_curves
+    from faceanim.rig.arkit import arkit_shapes
+    from faceanim.rig.rig import Rig
+
+    shapes, _ = arkit_shapes(face)
+    rig = Rig.from_blendshapes(face.mesh, shapes)
+    return rig, lipsync_curves(phones, list(rig.controls), FPS, frames=n)
+
+
+def curves_fap(face, phones, n):
+    from faceanim.drivers.speech.visemes import speech_stream
+    from faceanim.rig.mpeg4 import FapRig
+
+    rig = FapRig.build(face)
+    curves = rig.stream_curves(speech_stream(rig.lip_gap, phones, FPS))
+    out = np.zeros((n, curves.shape[1]))
+    out[:min(n, len(curves))] = curves[:n]
+    return rig, out
+
+
+def measure(face, rig, curves, size=384):
+    """The mouth of each frame on the mesh itself (the generic head's landmark points, which the
+    default face shares, in the face's frame, in the generic head's units): MediaPipe on these
+    renders misses openings under about 0.008 (the parted lips show pink, not a dark mouth), so
+    the renders are for the eye (the strips)."""
+    from faceanim.face.generic_head import generic_head
+    from faceanim.render import OffscreenRenderer
+
+    head = generic_head()
+    rot = face.frame.rotation
+    lm = head.landmarks()
+    scale = np.linalg.norm(lm[33] - lm[263]) / face.frame.iod
+    imgs, out = [], []
+    with OffscreenRenderer(face.mesh, size=(size, size), **face.view(yaw=0.0, pitch=0.0)) as r:
+        for v in rig.evaluate(curves):
+            imgs.append(r.render(v))
+            p = head.landmarks(v) @ rot.T * scale
+            gap = p[13, 1] - p[14, 1]
+            width = abs(p[291, 0] - p[61, 0])
+            inner = abs(p[308, 0] - p[78, 0])
+            out.append([gap, width, inner / gap if gap > 0.1 * width else np.nan])
+    return np.array(out), imgs
+
+
+def strip(path, imgs, phones):
+    import cv2
+    import imageio.v3 as iio
+
+    tiles = []
+    for p in phones:
+        if p.phone == "SIL":
+            continue
+        k = min(int(round(p.centre * FPS)), len(imgs) - 1)
+        img = imgs[k]
+        h, w = img.shape[:2]
+        tile = img[int(h * 0.5):int(h * 0.9), int(w * 0.25):int(w * 0.75)].copy()
+        cv2.putText(tile, p.phone, (6, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 0), 2)
+        tiles.append(tile)
+    rows = [np.hstack(tiles[i:i + 8] + [np.zeros_like(tiles[0])] * (8 - len(tiles[i:i + 8])))
+            for i in range(0, len(tiles), 8)]
+    iio.imwrite(path, np.vstack(rows))
+
+
+def evaluate(face, sentence, how, strips: Path | None):
+    import tempfile
+
+    from faceanim.drivers.speech import say_timed
+
+    with tempfile.TemporaryDirectory() as tmp:
+        phones = say_timed(sentence, Path(tmp) / "s.wav")
+    n = int(np.ceil((max(p.end for p in phones) + 0.2) * FPS)) + 1
+    rig, curves = (curves_fap if how == "fap" else curves_arkit)(face, phones, n)
+    mouth, imgs = measure(face, rig, curves)
+    if strips:
+        strips.mkdir(parents=True, exist_ok=True)
+        strip(strips / f"{how}-{'-'.join(sentence.lower().split()[:3]).strip(',')}.png", imgs, phones)
+    vowels = []
+    for p in phones:
+        cls = next((c for c, members in CLASSES.items() if p.phone in members), None)
+        if cls:
+            at = p.start + (0.3 if p.phone in DIPHTHONGS else 0.5) * (p.end - p.start)
+            k = min(int(round(at * FPS)), n - 1)
+            vowels.append((cls, *mouth[k]))
+    gap = np.nan_to_num(mouth[:, 0], nan=0.0)
+    shut = gap < SHUT * max(gap.max(), 1e-9)
+    t = np.arange(n) / FPS
+    bad = []
+    runs = np.split(np.flatnonzero(shut), np.flatnonzero(np.diff(np.flatnonzero(shut)) > 1) + 1)
+    for run in runs:
+        if len(run) < 2 or (len(run) - 1) / FPS <= LONG:
+            continue
+        a, b = t[run[0]], t[run[-1]]
+        under = [p for p in phones if p.end > a and p.start < b]
+        if under and under[0].start <= a and under[-1].end >= b and not any(p.phone in CLOSURES for p in under):
+            bad.append((round(a, 2), round(b - a, 2), " ".join(p.phone for p in under)))
+    return vowels, bad
+
+
+def main(argv=None) -> None:
+    from faceanim.face.face import Face
+
+    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    ap.add_argument("--strips", type=Path, help="write a strip per sentence into this folder")
+    ap.add_argument("--fap", action="store_true", help="also the MPEG-4 viseme path (say's before)")
+    args = ap.parse_args(argv)
+    face = Face.default()
+    for how in (("arkit", "fap") if args.fap else ("arkit",)):
+        vowels, closures = [], []
+        for s in SENTENCES:
+            v, bad = evaluate(face, s, how, args.strips)
+            vowels += v
+            closures += bad
+        print(f"\n## {how}\n\n| class | vowels | gap | width | rounding |\n|---|---:|---:|---:|---:|")
+        stats = {}
+        for cls in CLASSES:
+            rows = np.array([v[1:] for v in vowels if v[0] == cls], dtype=float)
+            if not len(rows):
+                continue
+            stats[cls] = rows
+            med = np.nanmedian(rows, axis=0)
+            print(f"| {cls} | {len(rows)} | {med[0]:.4f} | {med[1]:.4f} | {med[2]:.2f} |")
+        names = list(stats)
+        apart = []
+        for i, a in enumerate(names):
+            for b in names[i + 1:]:
+                ma, mb = np.nanmedian(stats[a], axis=0), np.nanmedian(stats[b], axis=0)
+                spread = np.nanmax([np.nanstd(stats[a], axis=0), np.nanstd(stats[b], axis=0)], axis=0)
+                apart.append((a, b, bool(np.any(np.abs(ma - mb) > spread))))
+        print("classes told apart (some measure's medians differ by more than a class's spread): "
+              + ", ".join(f"{a}/{b} {'yes' if ok else 'NO'}" for a, b, ok in apart))
+        print(f"closures over {LONG * 1000:.0f} ms inside words without p/b/m or a pause: {len(closures)} {closures[:6]}")
+
+
+if __name__ == "__main__":
+    main()
