@@ -294,6 +294,17 @@ def test_perform_command_writes_glb_csv_and_mp4(tmp_path, db):
     assert ("Audio: aac" in probe) == has_sound
 
 
+@needs_videos
+def test_raw_warns_that_it_is_the_baseline(tmp_path, capsys):
+    """--raw writes its CSV and says on stderr, in one line, that it is the per-frame baseline."""
+    out = tmp_path / "raw.csv"
+    assert run(["perform", VIDEOS / "d0.mp4", "--raw", "--quiet", "-o", out]) == 0 and out.is_file()
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert len(err) == 1 and "--raw is the per-frame baseline" in err[0]
+    assert run(["perform", VIDEOS / "d0.mp4", "--quiet", "-o", tmp_path / "s.csv"]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
 def test_perform_bad_input(tmp_path, capsys, db):
     from faceanim.render.video import write_video
 
@@ -562,3 +573,27 @@ def test_the_avatar_lips_open_as_the_performers_on_a_held_out_clip(db):
     r = np.corrcoef(avatar[ok], video[ok])[0, 1]
     span = np.subtract(*np.percentile(avatar[ok], [95, 5])) / np.subtract(*np.percentile(video[ok], [95, 5]))
     assert r > 0.85 and 0.8 < span < 1.25, (r, span)
+
+
+def test_a_lost_face_holds_then_eases_to_rest(db):
+    """A face lost for 3 s in the middle of a take: the expression holds for half a second after the
+    last tracked frame (and before the face comes back), is at rest (all weights 0) in the middle of
+    the gap, and eases by a half cosine in between; a face lost for less than a second never fades."""
+    from faceanim.drivers.video.tracking import Tracking
+    from faceanim.perform import lost_face_fade, perform
+
+    fade = lost_face_fade(np.r_[np.ones(30, bool), np.zeros(90, bool), np.ones(30, bool)], 30.0)
+    np.testing.assert_array_equal(fade[:45], 1.0)
+    np.testing.assert_array_equal(fade[105:], 1.0)
+    assert fade[75] == 0.0 and fade[52] == pytest.approx(0.5 * (1 + np.cos(np.pi * (23 / 30 - 0.5) / 0.5)))  # 23 frames from the last seen
+    assert np.all(np.diff(fade[30:75]) <= 0) and np.all(np.diff(fade[75:120]) >= 0)
+    np.testing.assert_array_equal(lost_face_fade(np.r_[np.ones(5, bool), np.zeros(25, bool), np.ones(5, bool)], 30.0), 1.0)
+    a, n = 1000, 150
+    tracked = np.r_[np.ones(30, bool), np.zeros(90, bool), np.ones(30, bool)]
+    nan = np.where(tracked[:, None], 1.0, np.nan)
+    tr = Tracking(30.0, tracked, np.zeros((n, 6)) * nan, np.zeros((n, 19, 2)) * nan[:, :, None],
+                  db.raw[a:a + n] * nan, db.controls[a:a + n] * nan, 0)
+    w = perform(tr, db, follow_mouth=False).weights
+    assert np.abs(w[29]).max() > 0 and np.abs(w[75]).max() == 0.0
+    # once the synthesis window holds only the held frame, the expression is that held one, faded
+    np.testing.assert_allclose(w[36:60], np.repeat(w[36:37], 24, axis=0) * fade[36:60, None], atol=1e-12)

@@ -64,6 +64,7 @@ GAZE_HOLD = 0.5  # while a lid is closed this far, the iris is not seen: the gaz
 MOUTH_MEASURES = ("inner_gap", "mouth_width", "smile")
 MOUTH_LANDMARKS = (13, 14, 61, 291, 0, 17)  # inner lips' middle, corners, outer lips' middle
 REGION_EDGE = 0.02  # metres: the lower and upper face blend over this band at the subnasale
+LOST_HOLD, LOST_EASE = 0.5, 0.5  # seconds a lost face holds its last expression, then eases to rest
 HEAD_MIN_CUTOFF, HEAD_BETA = 0.5, 0.05  # One-Euro on the head's angles (Hz; per degree/second)
 
 
@@ -125,6 +126,21 @@ def hold_untracked(values: np.ndarray, tracked: np.ndarray) -> np.ndarray:
         raise FaceAnimError("no face was found in any frame of the video; give a video where the face is seen")
     src = idx[np.clip(np.searchsorted(idx, np.arange(len(v)), side="right") - 1, 0, None)]
     return v[src]
+
+
+def lost_face_fade(tracked: np.ndarray, fps: float, hold: float = LOST_HOLD, ease: float = LOST_EASE) -> np.ndarray:
+    """(F,) how much of the held expression a frame keeps while the face is lost: 1 within ``hold``
+    seconds of a tracked frame, then easing (a half cosine over ``ease`` seconds) to 0, the face at
+    rest; symmetric, so the expression also comes back smoothly before the face is found again."""
+    tracked = np.asarray(tracked, dtype=bool)
+    idx = np.flatnonzero(tracked)
+    if not len(idx):
+        return np.zeros(len(tracked))
+    frames = np.arange(len(tracked))
+    k = np.clip(np.searchsorted(idx, frames), 1, len(idx)) if len(idx) > 1 else np.ones(len(tracked), int)
+    nearest = np.minimum(np.abs(frames - idx[k - 1]), np.abs(frames - idx[np.minimum(k, len(idx) - 1)]))
+    beyond = np.clip((nearest / float(fps) - hold) / max(ease, 1e-9), 0.0, 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * beyond))
 
 
 def blink_curves(tracking: Tracking) -> np.ndarray:
@@ -287,7 +303,8 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
     in units of their spread over the database and held to its range (0.5-99.5th percentile). A
     video at another frame rate than the database is resampled to it for the synthesis (segments
     are W of the database's frames) and back. The head's angles are smoothed by a One-Euro filter
-    (``smooth_head``)."""
+    (``smooth_head``). Where the face is lost, the expression holds for :data:`LOST_HOLD` seconds
+    and then eases to rest (:func:`lost_face_fade`); the head holds its last pose."""
     from faceanim.drivers.video.filters import one_euro
 
     db = db or default_database()
@@ -297,9 +314,10 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
         pose[:, :3] = one_euro(pose[:, :3], tracking.fps, HEAD_MIN_CUTOFF, HEAD_BETA)
     blinks = blink_curves(tracking)
     eyes = np.hstack([blinks, look_curves(tracking, blinks)])
+    fade = lost_face_fade(tracking.tracked, tracking.fps)[:, None]
     if raw:
         weights = np.c_[controls, np.ones(len(controls))] @ direct_mapping(db)
-        return Performance(tracking.fps, np.hstack([weights, weights, eyes]), pose, tracking.tracked.copy())
+        return Performance(tracking.fps, np.hstack([weights, weights, eyes]) * fade, pose, tracking.tracked.copy())
     t_video = np.arange(len(controls)) / tracking.fps
     resample = abs(tracking.fps - db.fps) > 1e-6 * db.fps
     if resample:
@@ -344,7 +362,7 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
         along, *_ = np.linalg.lstsq(np.c_[known_mouth / spread, np.ones(db.n_frames)], db.weights, rcond=None)
         got = weights[:, n_l:n_l + len(MOUTH_MEASURES)]
         weights = np.hstack([weights[:, :n_l] + (target - got) @ along[:-1], weights[:, n_l + len(MOUTH_MEASURES):]])
-    weights = np.hstack([weights, eyes])
+    weights = np.hstack([weights, eyes]) * fade  # a face lost for long goes back to rest
     settings = {"window": window, "k": k, "overlap": int(overlap), "delay": (int(overlap) - 1) / db.fps,
                 "follow_mouth": follow}
     return Performance(tracking.fps, weights, pose, tracking.tracked.copy(), settings)

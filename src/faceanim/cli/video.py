@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -151,6 +152,9 @@ def _cmd_perform(args) -> None:
                    whole_face=args.whole_face)
     if args.raw:
         how = "mapped frame by frame (--raw)"
+        print("faceanim perform: warning: --raw is the per-frame baseline the synthesis is measured against: "
+              "expect exposed gums, smears on head turns and unsteady eyes; leave it out for the synthesised "
+              "motion", file=sys.stderr)
     else:
         used = perf.settings
         how = (f"filtered and synthesised {'on the whole face' if args.whole_face else 'feature-wise'} from "
