@@ -150,7 +150,7 @@ def test_say_to_glb_writes_its_sound_beside_and_names_morphs_by_arkit(tmp_path, 
     info = soundfile.info(str(tmp_path / "h-1.wav"))
     names = gltf.meshes[0].extras["targetNames"]
     # the face's own ARKit shapes, by Apple's names, the mouth's among them
-    assert {"jawOpen", "mouthClose", "mouthFunnel", "mouthPucker"} <= set(names)
+    assert {"jawOpen", "mouthFunnel", "mouthPucker", "mouthStretchLeft"} <= set(names)
     assert all(n[0].islower() and not n.startswith(("fap", "open_")) for n in names)
     # the animation and the sound are the same length (to a frame)
     times = gltf.accessors[gltf.animations[0].samplers[0].input]

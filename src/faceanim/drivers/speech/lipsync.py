@@ -37,7 +37,7 @@ CLOSE_FALL = 0.015  # the lips of a p, b, m: shut over the phone, parting this f
 REACH = 10 * VOWEL_FALL  # beyond this a phone's dominance is negligible (e^-10)
 STRESS_RANGE = (0.75, 1.15)  # the jaw of a vowel scaled by sqrt(duration / inherent), held to this
 JAW_SHAPES = ("jawOpen", "mouthClose")  # the shapes the jaw's dominance rules; the lips' rule the rest
-REST = 0.15  # seconds at rest after the last phone in the curves
+REST = 0.06  # seconds the curves go on after the last phone (the sound ends with it)
 
 
 @lru_cache(maxsize=1)
