@@ -14,10 +14,10 @@ units; the default face has the generic head's topology).
   a class in at least one of the three.
 - **Closures**: every run of frames inside a word with the lips shut (gap under 0.1 of the
   largest gap) longer than 80 ms where the phones under it are not p, b, m (a closure) or a pause.
-- ``--fap``: the same for the MPEG-4 viseme path (``say -o x.fap`` played on the FAP rig), the
-  one ``say`` used before.
+- ``--paths arkit,fap``: also the MPEG-4 viseme path (``say -o x.fap`` played on the FAP rig), the
+  one ``say`` used for every output before.
 
-Usage (from /work/main): ``python scripts/eval_say.py [--strips docs/figures/say] [--fap]``
+Usage (from /work/main): ``python scripts/eval_say.py [--strips DIR] [--paths arkit,fap]``
 """
 
 from __future__ import annotations
@@ -147,10 +147,13 @@ def main(argv=None) -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     ap.add_argument("--strips", type=Path, help="write a strip per sentence into this folder")
-    ap.add_argument("--fap", action="store_true", help="also the MPEG-4 viseme path (say's before)")
+    ap.add_argument("--paths", default="arkit", help="arkit (say's lip sync), fap (the MPEG-4 visemes say used "
+                    "before, still what it writes to .fap) or both: arkit,fap")
     args = ap.parse_args(argv)
     face = Face.default()
-    for how in (("arkit", "fap") if args.fap else ("arkit",)):
+    for how in args.paths.split(","):
+        if how not in ("arkit", "fap"):
+            ap.error(f"unknown path {how!r}; give arkit, fap or arkit,fap")
         vowels, closures = [], []
         for s in SENTENCES:
             v, bad = evaluate(face, s, how, args.strips)
