@@ -92,6 +92,8 @@ def test_alignment_of_real_speech():
         align(wav, "zxqvbn wordz")
     with pytest.raises(SpeechError, match="match"):
         align(wav, (SPEECH / "clip-0930.txt").read_text())  # another clip's words
+    with pytest.raises(SpeechError, match="it is silent"):
+        align(np.zeros(32000, np.float32), "hello world", 16000)  # silence with a transcript
 
 
 @has_espeak

@@ -241,6 +241,8 @@ def align(audio, transcript: str, rate: int | None = None, decoder=None) -> list
     with their ``rate``); ``decoder`` reuses a pocketsphinx decoder (loading the model takes ~0.3 s)."""
     x, rate = _samples(audio, rate)
     words = words_of(transcript, "the transcript")
+    if not len(x) or float(np.sqrt(np.mean(np.square(x, dtype=np.float64)))) < SILENT_RMS:
+        raise SpeechError("no speech was heard in the audio (it is silent); give a recording of the transcript spoken")
     dec = decoder or _decoder()
     unknown = [w for w in dict.fromkeys(words) if dec.lookup_word(w) is None]
     if unknown:
