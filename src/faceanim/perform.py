@@ -348,10 +348,12 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
     if whole_face:
         lower = upper = synthesise(list(range(len(CONTROL_NAMES))), db.weights)
     else:
-        known_mouth = database_mouth(db)
-        spread = np.maximum(known_mouth.std(axis=0), 1e-12)
-        lower = synthesise([CONTROL_NAMES.index(n) for n in LOWER_FACE],
-                           np.hstack([db.weights, known_mouth / spread]) if follow else db.weights)
+        markers = db.weights
+        if follow:  # the database's mouth measures ride along with its weights
+            known_mouth = database_mouth(db)
+            spread = np.maximum(known_mouth.std(axis=0), 1e-12)
+            markers = np.hstack([db.weights, known_mouth / spread])
+        lower = synthesise([CONTROL_NAMES.index(n) for n in LOWER_FACE], markers)
         upper = synthesise([CONTROL_NAMES.index(n) for n in UPPER_FACE], db.weights)
     weights = np.hstack([lower, upper])
     if resample:
