@@ -177,7 +177,8 @@ def main(argv=None) -> None:
                 apart.append((a, b, bool(np.any(np.abs(ma - mb) > spread))))
         print("classes told apart (some measure's medians differ by more than a class's spread): "
               + ", ".join(f"{a}/{b} {'yes' if ok else 'NO'}" for a, b, ok in apart))
-        print(f"closures over {LONG * 1000:.0f} ms inside words without p/b/m or a pause: {len(closures)} {closures[:6]}")
+        print(f"closures over {LONG * 1000:.0f} ms inside words without p/b/m or a pause: {len(closures)} "
+              f"{closures[:6]}")
 
 
 if __name__ == "__main__":

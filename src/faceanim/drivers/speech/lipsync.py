@@ -82,7 +82,8 @@ def speech_targets(phones: list[Phone]) -> list[tuple[float, float, dict, str]]:
     if out:
         rest = phone_target("SIL")
         # at rest from well before the first phone until well after the last
-        out = [(out[0][0] - 2 * REACH, out[0][0], rest, "SIL")] + out + [(out[-1][1], out[-1][1] + 2 * REACH, rest, "SIL")]
+        first, last = out[0][0], out[-1][1]
+        out = [(first - 2 * REACH, first, rest, "SIL")] + out + [(last, last + 2 * REACH, rest, "SIL")]
     return out
 
 

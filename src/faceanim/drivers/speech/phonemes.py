@@ -14,6 +14,7 @@ lines of a file it cannot parse as a voice.
 
 from __future__ import annotations
 
+import bisect
 import difflib
 import logging
 import re
@@ -420,18 +421,22 @@ def _library_speech(text: str, voice: str, speed: int) -> tuple[np.ndarray, int,
 
 def espeak_phones(text: str, voice: str = DEFAULT_VOICE, speed: int = WORD_WPM) -> tuple[np.ndarray, int, list[Phone]]:
     """Speak ``text`` with espeak-ng's library in one go (:mod:`~faceanim.drivers.speech.espeak_lib`)
-    and return the sound (float32, mono), its rate and the phones with espeak-ng's own timing: each phoneme from where its sound starts to
-    where the next one's does (a stop from :data:`CLOSURE` before its burst, as its lips or tongue
-    close before), as ARPAbet (:data:`ESPEAK_ARPABET`; a two-phone mnemonic such as a syllabic l
-    shared by :data:`INHERENT_MS`), pauses as ``SIL``, each with its word. Raises OSError when the
-    library cannot be loaded."""
+    and return the sound (float32, mono), its rate and the phones with espeak-ng's own timing: each
+    phoneme from where its sound starts to where the next one's does (a stop from :data:`CLOSURE`
+    before its burst, as its lips or tongue close before), as ARPAbet (:data:`ESPEAK_ARPABET`; a
+    two-phone mnemonic such as a syllabic l shared by :data:`INHERENT_MS`), pauses as ``SIL``, each
+    with its word. Raises OSError when the library cannot be loaded."""
     check_text(text)
     x, rate, events = _library_speech(text, check_voice(voice), check_speed(speed))
     total = len(x) / rate
     marks = [e for e in events if e[0] == "phoneme"]
     starts = [e[2] / 1000.0 for e in marks] + [total]
-    words = [(e[2] / 1000.0, text.encode("utf-8")[max(e[1][0] - 1, 0):max(e[1][0] - 1, 0) + e[1][1]].decode("utf-8", "replace"))
-             for e in events if e[0] == "word"]
+    data = text.encode("utf-8")
+    word_at, word_names = [], []
+    for _, (position, length), ms in (e for e in events if e[0] == "word"):
+        first = max(int(position) - 1, 0)  # espeak-ng counts from 1
+        word_at.append(ms / 1000.0)
+        word_names.append(data[first:first + int(length)].decode("utf-8", "replace").lower())
     phones: list[Phone] = []
     for k, (_, mnemonic, _) in enumerate(marks):
         a, b = starts[k], max(starts[k + 1], starts[k])
@@ -443,8 +448,8 @@ def espeak_phones(text: str, voice: str = DEFAULT_VOICE, speed: int = WORD_WPM) 
                 last = phones[-1]
                 phones[-1] = Phone(last.phone, last.start, b, last.word)
             continue
-        here = [w for t, w in words if t <= a + 1e-9]
-        word = here[-1].lower() if here and names != ["SIL"] else ""
+        w = bisect.bisect_right(word_at, a + 1e-9)  # the last word begun by now
+        word = word_names[w - 1] if w and names != ["SIL"] else ""
         phones += share_by_inherent_duration(names, a, b, word) if len(names) > 1 else [Phone(names[0], a, b, word)]
     out: list[Phone] = []
     for p in phones:  # a stop's closure: taken from the phone before it
