@@ -1,16 +1,16 @@
 """Lip sync on a face's ARKit shapes: timed phones -> ARKit curves (``faceanim say``).
 
 Each ARPAbet phone has a mouth target, a mix of ARKit shapes (``data/visemes_arkit.json``,
-``phones``): the jaw opened by the vowel's height (open vowels 0.4-0.5 of ``jawOpen``, close ones
-0.06-0.15), lips spread (IY, EH), neutral (AA, AH) or rounded (AO, UW, W: ``mouthFunnel`` and
-``mouthPucker``), pressed (p, b, m) or tucked under the teeth (f, v). Diphthongs are two targets
+``phones``): the jaw opened by the vowel's height (AA 0.6 of ``jawOpen``, AE 0.5, EH 0.32, close
+vowels 0.06-0.18), lips spread (IY, EH), neutral (AA, AH) or rounded (AO, UW, W: ``mouthFunnel``
+and ``mouthPucker``), shut (p, b, m) or tucked under the teeth (f, v). Diphthongs are two targets
 (AW: AA then UW). A vowel longer than its inherent duration (stressed) opens the jaw further, a
 shorter one less (:data:`STRESS_RANGE`).
 
 Co-articulation follows Cohen & Massaro's dominance model (1993): each phone weighs on the mouth
 with a dominance that is flat over the phone and falls off exponentially before and after it
-(:data:`VOWEL_FALL`, :data:`CONSONANT_FALL`); at each moment every shape's weight is the dominance-weighted
-mean of the phones' targets, separately for the jaw and for the lips. A p/b/m dominates its
+(:data:`VOWEL_FALL`, :data:`CONSONANT_FALL`); at each moment every shape's weight is the
+dominance-weighted mean of the phones' targets, separately for the jaw and for the lips. A p/b/m dominates its
 neighbours' lips, a t, d, n, l, k or g barely (the lips keep the shape of the vowels around it), so
 the mouth keeps moving between words and closes only for a closure or a pause (``SIL``; the
 utterance also starts and ends at rest). A p, b or m shuts the lips with ARKit's ``mouthClose``
