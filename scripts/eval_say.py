@@ -12,12 +12,16 @@ units; the default face has the generic head's topology).
   UH, OY) - the median gap, width and
   rounding per class, and whether each pair of classes differs by more than the spread within
   a class in at least one of the three.
-- **Closures**: every run of frames inside a word with the lips shut (gap under 0.1 of the
+- **Closures**: how many p, b, m have the lips shut at their middle frame; every run of frames inside a word with the lips shut (gap under 0.1 of the
   largest gap) longer than 80 ms where the phones under it are not p, b, m (a closure) or a pause.
 - ``--paths arkit,fap``: also the MPEG-4 viseme path (``say -o x.fap`` played on the FAP rig), the
   one ``say`` used for every output before.
 
-Usage (from /work/main): ``python scripts/eval_say.py [--strips DIR] [--paths arkit,fap]``
+- ``--librivox DIR``: the same on recorded speech (each WAV aligned with its transcript), the
+  timing a user's own recording gets.
+
+Usage (from /work/main): ``python scripts/eval_say.py [--strips DIR] [--paths arkit,fap]
+[--librivox ../shared/data/speech-librivox [--only-librivox]]``
 """
 
 from __future__ import annotations
@@ -108,18 +112,23 @@ def strip(path, imgs, phones):
 
 
 def evaluate(face, sentence, how, strips: Path | None):
+    """``sentence``: text to speak, or a (WAV, transcript) pair of recorded speech (aligned)."""
     import tempfile
 
-    from faceanim.drivers.speech import say_timed
+    from faceanim.drivers.speech import align, say_timed
 
-    with tempfile.TemporaryDirectory() as tmp:
-        phones = say_timed(sentence, Path(tmp) / "s.wav")
+    if isinstance(sentence, tuple):
+        wav, sentence = sentence
+        phones = align(wav, sentence)
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            phones = say_timed(sentence, Path(tmp) / "s.wav")
     n = int(np.ceil((max(p.end for p in phones) + 0.2) * FPS)) + 1
     rig, curves = (curves_fap if how == "fap" else curves_arkit)(face, phones, n)
     mouth, imgs = measure(face, rig, curves)
     if strips:
         strips.mkdir(parents=True, exist_ok=True)
-        strip(strips / f"{how}-{'-'.join(sentence.lower().split()[:3]).strip(',')}.png", imgs, phones)
+        strip(strips / f"{how}-{'-'.join(sentence.lower().split()[:3]).replace(',', '')}.png", imgs, phones)
     vowels = []
     for p in phones:
         cls = next((c for c, members in CLASSES.items() if p.phone in members), None)
@@ -139,7 +148,8 @@ def evaluate(face, sentence, how, strips: Path | None):
         under = [p for p in phones if p.end > a and p.start < b]
         if under and under[0].start <= a and under[-1].end >= b and not any(p.phone in CLOSURES for p in under):
             bad.append((round(a, 2), round(b - a, 2), " ".join(p.phone for p in under)))
-    return vowels, bad
+    bilabial = [bool(shut[min(int(round(p.centre * FPS)), n - 1)]) for p in phones if p.phone in ("P", "B", "M")]
+    return vowels, bad, bilabial
 
 
 def main(argv=None) -> None:
@@ -147,6 +157,9 @@ def main(argv=None) -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     ap.add_argument("--strips", type=Path, help="write a strip per sentence into this folder")
+    ap.add_argument("--librivox", type=Path, help="also (or with --only-librivox, only) the recorded clips of "
+                    "this folder (../shared/data/speech-librivox: WAV + transcript, aligned)")
+    ap.add_argument("--only-librivox", action="store_true", help="leave the spoken sentences out")
     ap.add_argument("--paths", default="arkit", help="arkit (say's lip sync), fap (the MPEG-4 visemes say used "
                     "before, still what it writes to .fap) or both: arkit,fap")
     args = ap.parse_args(argv)
@@ -154,11 +167,15 @@ def main(argv=None) -> None:
     for how in args.paths.split(","):
         if how not in ("arkit", "fap"):
             ap.error(f"unknown path {how!r}; give arkit, fap or arkit,fap")
-        vowels, closures = [], []
-        for s in SENTENCES:
-            v, bad = evaluate(face, s, how, args.strips)
+        vowels, closures, bilabials = [], [], []
+        inputs = [] if args.only_librivox else list(SENTENCES)
+        if args.librivox:
+            inputs += [(wav, wav.with_suffix(".txt").read_text()) for wav in sorted(args.librivox.glob("*.wav"))]
+        for s in inputs:
+            v, bad, shut = evaluate(face, s, how, args.strips)
             vowels += v
             closures += bad
+            bilabials += shut
         print(f"\n## {how}\n\n| class | vowels | gap | width | rounding |\n|---|---:|---:|---:|---:|")
         stats = {}
         for cls in CLASSES:
@@ -177,6 +194,7 @@ def main(argv=None) -> None:
                 apart.append((a, b, bool(np.any(np.abs(ma - mb) > spread))))
         print("classes told apart (some measure's medians differ by more than a class's spread): "
               + ", ".join(f"{a}/{b} {'yes' if ok else 'NO'}" for a, b, ok in apart))
+        print(f"p/b/m with the lips shut at their middle: {sum(bilabials)} of {len(bilabials)}")
         print(f"closures over {LONG * 1000:.0f} ms inside words without p/b/m or a pause: {len(closures)} "
               f"{closures[:6]}")
 
