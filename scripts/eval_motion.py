@@ -28,8 +28,9 @@ Clips d0, d3, d9 are the tuning set, d10, d14, d18 the held-out set (``--clips``
 the summary gives the median of each figure over each set.
 
 Usage (from /work/main): ``python scripts/eval_motion.py ../shared/data [--clips d10,d14] [--size 512]
-[--sheets docs/figures/motion]`` (``--sheets``: a contact sheet per clip, the video beside the avatar
-at the deepest blink, the widest and the most rounded open mouth, and a still moment)
+[--sheets DIR] [--face MESH]`` (``--face``: another avatar than the default face; ``--sheets``: a
+contact sheet per clip, the video beside the avatar at the deepest blink, the widest and the most
+rounded open mouth, and a still moment)
 """
 
 from __future__ import annotations
@@ -251,10 +252,12 @@ def main(argv=None) -> None:
     p.add_argument("data", type=Path, help="the shared data folder (../shared/data)")
     p.add_argument("--clips", default=",".join(TUNING + HELD_OUT), help="clip names (default: all six)")
     p.add_argument("--size", type=int, default=512, help="render size of the avatar (pixels)")
+    p.add_argument("--face", help="the avatar's mesh (default: the embedded default face), e.g. the ICT head "
+                   "or a head from photos")
     p.add_argument("--sheets", type=Path, help="write a contact sheet per clip into this folder (the video "
                    "beside the avatar at its deepest blink, widest and most rounded mouth, and a still moment)")
     args = p.parse_args(argv)
-    face = Face.default()
+    face = Face.load(args.face) if args.face else Face.default()
     results = {}
     for name in args.clips.split(","):
         path = args.data / "talking-head-videos" / f"{name}.mp4"
