@@ -132,13 +132,12 @@ def lost_face_fade(tracked: np.ndarray, fps: float, hold: float = LOST_HOLD, eas
     """(F,) how much of the held expression a frame keeps while the face is lost: 1 within ``hold``
     seconds of a tracked frame, then easing (a half cosine over ``ease`` seconds) to 0, the face at
     rest; symmetric, so the expression also comes back smoothly before the face is found again."""
+    from scipy.ndimage import distance_transform_edt
+
     tracked = np.asarray(tracked, dtype=bool)
-    idx = np.flatnonzero(tracked)
-    if not len(idx):
+    if not tracked.any():
         return np.zeros(len(tracked))
-    frames = np.arange(len(tracked))
-    k = np.clip(np.searchsorted(idx, frames), 1, len(idx)) if len(idx) > 1 else np.ones(len(tracked), int)
-    nearest = np.minimum(np.abs(frames - idx[k - 1]), np.abs(frames - idx[np.minimum(k, len(idx) - 1)]))
+    nearest = distance_transform_edt(~tracked)  # frames to the nearest tracked frame
     beyond = np.clip((nearest / float(fps) - hold) / max(ease, 1e-9), 0.0, 1.0)
     return 0.5 * (1.0 + np.cos(np.pi * beyond))
 

@@ -85,11 +85,11 @@ class Mesh:
         return self.faces.shape[0]
 
     def __getstate__(self) -> dict:
-        # a pickled mesh (e.g. a bound face sent to a batch worker) leaves its trimesh copies behind:
-        # their spatial index (rtree) does not survive pickling and answers later queries wrongly
+        # a pickled mesh (e.g. a bound face sent to a batch worker) leaves its trimesh copy behind:
+        # its spatial index (rtree) does not survive pickling and answers later queries wrongly
         state = self.__dict__.copy()
         state.pop("trimesh", None)
-        state["_parts"] = {}
+        state.pop("_query_vertices", None)  # remade on demand
         return state
 
     @cached_property
@@ -165,10 +165,8 @@ class Mesh:
             if allowed.size == self.n_faces:
                 allowed = None
         faces = self.faces if allowed is None else self.faces[allowed]
-        vertices = self._parts.get("scaled")
-        if vertices is None:
-            vertices = self._parts["scaled"] = np.ascontiguousarray((self.vertices - centre) * scale, dtype=np.float64)
-        d2, tri, closest = igl.point_mesh_squared_distance(np.ascontiguousarray(pts, dtype=np.float64), vertices,
+        d2, tri, closest = igl.point_mesh_squared_distance(np.ascontiguousarray(pts, dtype=np.float64),
+                                                           self._query_vertices,
                                                            np.ascontiguousarray(faces, dtype=np.int64))
         tri = np.asarray(tri, dtype=np.int64).reshape(-1)
         dist = np.sqrt(np.maximum(np.asarray(d2, dtype=np.float64).reshape(-1), 0.0))
@@ -184,8 +182,10 @@ class Mesh:
         return (lo + hi) / 2, (1.0 / edge if np.isfinite(edge) and edge > 0 else 1.0)
 
     @cached_property
-    def _parts(self) -> dict:
-        return {}
+    def _query_vertices(self) -> np.ndarray:
+        """The vertices in :attr:`_query_frame` (contiguous float64, as libigl takes them)."""
+        centre, scale = self._query_frame
+        return np.ascontiguousarray((self.vertices - centre) * scale, dtype=np.float64)
 
     @cached_property
     def vertex_triangle(self) -> np.ndarray:
