@@ -128,11 +128,11 @@ def inner_lip_gap(frontal: np.ndarray) -> float:
     return float(frontal[INNER_LIPS[0], 1] - frontal[INNER_LIPS[1], 1])
 
 
-def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np.ndarray, gaze: bool = False):
+def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np.ndarray, eyes_and_lips: bool = False):
     """Head pose (6,) and fronto-parallel features (19, 2) from one frame's 478 landmarks in
     pixels with depth ((x right, y down, z away from the camera), as MediaPipe reports them
-    scaled by the image width); with ``gaze``, also the irises' :func:`gaze_offsets` and the
-    :func:`inner_lip_gap`."""
+    scaled by the image width); with ``eyes_and_lips``, also the irises' :func:`gaze_offsets` and
+    the :func:`inner_lip_gap`."""
     q = landmarks_px * np.array([1.0, -1.0, -1.0])  # camera coordinates: y up, z towards the camera
     s, r, t = similarity(reference[rigid], q[rigid])
     yaw, pitch, roll = euler_degrees(r)
@@ -140,7 +140,7 @@ def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np
     idx = [FEATURES[n] for n in FEATURE_NAMES]
     anchor = landmarks_px[168, :2]  # the nose bridge: where the head is in the picture
     pose = np.array([yaw, pitch, roll, anchor[0], anchor[1], s])
-    if gaze:
+    if eyes_and_lips:
         return pose, frontal[idx, :2], gaze_offsets(frontal), inner_lip_gap(frontal)
     return pose, frontal[idx, :2]
 
@@ -169,7 +169,7 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
             result = fm.process(np.ascontiguousarray(frame))
             if result.multi_face_landmarks:
                 lm = np.array([[p.x * w, p.y * h, p.z * w] for p in result.multi_face_landmarks[0].landmark])
-                p6, f19, g4, lips = pose_and_features(lm, rigid, reference, gaze=True)
+                p6, f19, g4, lips = pose_and_features(lm, rigid, reference, eyes_and_lips=True)
                 pose.append(p6)
                 feats.append(f19)
                 gaze.append(g4)
