@@ -5,7 +5,10 @@ faceanim's own photo pipeline (``faceanim.build.photo``, Lee et al. 1999, sectio
 front view: the generic head (ICT FaceKit) gets the face's proportions from the photo and its
 depth from the generic head; the photo's smile and parted lips are fitted with the generic head's
 blendshapes, the texture is taken on that smiling head (so lips sample lips and the teeth the
-photo shows are not painted on the lips), and the head is stored without the smile.
+photo shows are not painted on the lips), and the head is stored without the smile. The fit leaves
+the corners raised (0.07 inter-ocular distances over the middle of the lips; the generic head
+0.005): ``NEUTRAL_MOUTH``, a mix of the head's own shapes chosen by looking at renders, lowers them
+to 0.02 at the generic head's mouth width (-1 of mouthSmile alone would make a pout).
 
 Writes ``src/faceanim/assets/default_head.npz`` (vertices, texture coordinates) and
 ``default_head.png`` (the texture atlas); triangles, parts and landmarks are the generic head's.
@@ -26,6 +29,9 @@ sys.path.insert(0, str(ROOT / "src"))
 
 ASSETS = ROOT / "src" / "faceanim" / "assets"
 TEXTURE_SIZE = 1024
+# the resting mouth: corners down without narrowing the mouth (issue 20)
+NEUTRAL_MOUTH = {"mouthFrown_L": 0.2, "mouthFrown_R": 0.2, "mouthSmile_L": -0.5, "mouthSmile_R": -0.5,
+                 "mouthStretch_L": 0.2, "mouthStretch_R": 0.2}
 
 
 def main(argv=None) -> None:
@@ -33,13 +39,16 @@ def main(argv=None) -> None:
     from skimage import data
 
     from faceanim.build.photo import head_from_photos
+    from faceanim.face.generic_head import generic_head
 
     photo = data.astronaut()
     ph = head_from_photos(("astronaut", photo), texture_size=TEXTURE_SIZE)
     m = ph.mesh
+    shapes = generic_head().carried_shapes(ph.fitted.affine[:, :3])
+    vertices = m.vertices + sum(w * shapes[name] for name, w in NEUTRAL_MOUTH.items())
     np.savez_compressed(
         ASSETS / "default_head.npz",
-        vertices=m.vertices.astype(np.float32),
+        vertices=vertices.astype(np.float32),
         uv=m.uv.astype(np.float32),
         face_uv=m.face_uv.astype(np.int32),
         affine=ph.fitted.affine,  # the fit's global part: carries the generic head's shapes over

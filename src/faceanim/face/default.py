@@ -4,7 +4,8 @@
 own photo pipeline (:mod:`faceanim.build.photo`, Lee et al. 1999): the generic head
 (:mod:`faceanim.face.generic_head`, the ICT FaceKit head) fitted to the photo's face, with skin,
 eyeballs, teeth, gums, tongue and mouth cavity as parts of one mesh, a neutral mouth (the photo's
-smile fitted, then taken off) and one texture atlas. The asset stores the vertices and texture
+smile fitted, then taken off, the corners lowered by the script's ``NEUTRAL_MOUTH``) and one
+texture atlas. The asset stores the vertices and texture
 coordinates; triangles, parts and the 478 landmarks (on triangles) are the generic head's. Units
 are metres; the face looks along +z with +y up.
 """
