@@ -142,37 +142,73 @@ def lost_face_fade(tracked: np.ndarray, fps: float, hold: float = LOST_HOLD, eas
     return 0.5 * (1.0 + np.cos(np.pi * beyond))
 
 
+def blink_closure(opening: np.ndarray, rest: float, low: float) -> np.ndarray:
+    """An eye's closure in 0..1 (before the dead zone) from its lid ``opening``: against the open
+    eye ``rest`` and the closed one (``low``, the lowest opening seen, when the performer blinked,
+    i.e. under half of ``rest``; else :data:`CLOSED_LID` of ``rest``)."""
+    closed = low if low < 0.5 * rest else CLOSED_LID * rest
+    return np.clip((rest - np.asarray(opening, dtype=np.float64)) / max(rest - closed, 1e-12), 0.0, 1.0)
+
+
+def blink_dead_zone(closure: np.ndarray) -> np.ndarray:
+    """eyeBlink from a closure: closures under :data:`BLINK_DEAD` are rest (no droop from lid noise)."""
+    return np.clip((np.asarray(closure) - BLINK_DEAD) / (1.0 - BLINK_DEAD), 0.0, 1.0)
+
+
 def blink_curves(tracking: Tracking) -> np.ndarray:
     """(F, 2) eyeBlinkLeft and eyeBlinkRight (the subject's sides) read off the performer's lids:
     each eye's opening (fronto-parallel lid distance) against the performer's own open eye (its
     median over the clip: eyes are open most of the time) and closed eye (its 1st percentile when
-    the performer blinks, else :data:`CLOSED_LID` of the open one), as a closure in 0..1 with a dead
-    zone of :data:`BLINK_DEAD` at rest, and a 3-frame median against single-frame spikes (a blink
-    lasts 3-5 frames at 30 fps). Untracked frames hold the last tracked value."""
+    the performer blinks, :func:`blink_closure`), with a dead zone of :data:`BLINK_DEAD` at rest,
+    and a 3-frame median against single-frame spikes (a blink lasts 3-5 frames at 30 fps).
+    Untracked frames hold the last tracked value."""
     from scipy.ndimage import median_filter
 
     out = []
     for name in ("eye_open_L", "eye_open_R"):
         o = hold_untracked(tracking.raw[:, [CONTROL_NAMES.index(name)]], tracking.tracked)[:, 0]
-        rest = float(np.median(o))
-        low = float(np.percentile(o, 1))
-        closed = low if low < 0.5 * rest else CLOSED_LID * rest
-        c = np.clip((rest - o) / max(rest - closed, 1e-12), 0.0, 1.0)
-        c = median_filter(c, size=3, mode="nearest")
-        out.append(np.clip((c - BLINK_DEAD) / (1.0 - BLINK_DEAD), 0.0, 1.0))
+        c = blink_closure(o, float(np.median(o)), float(np.percentile(o, 1)))
+        out.append(blink_dead_zone(median_filter(c, size=3, mode="nearest")))
     return np.stack(out, axis=1)
+
+
+def look_weights(offsets: np.ndarray, outward: float) -> np.ndarray:
+    """(..., 4) one eye's eyeLook In, Out, Up, Down from (..., 2) iris offsets less the eye's
+    straight-ahead offset (eye widths, x the subject's left, y up): turned into angles on a sphere
+    of :data:`IRIS_RADIUS` eye widths, then into weights by the angles a Live Link Face take records
+    at weight 1 (:data:`~faceanim.rig.arkit.LOOK_ANGLES`); ``outward`` +1 for the left eye (its
+    outward side is the subject's left), -1 for the right."""
+    from faceanim.rig.arkit import LOOK_ANGLES
+
+    angle = np.arcsin(np.clip(np.asarray(offsets, dtype=np.float64) / IRIS_RADIUS, -1.0, 1.0))
+    yaw, pitch = outward * angle[..., 0], angle[..., 1]
+    return np.clip(np.stack([np.maximum(-yaw, 0) / LOOK_ANGLES["In"], np.maximum(yaw, 0) / LOOK_ANGLES["Out"],
+                             np.maximum(pitch, 0) / LOOK_ANGLES["Up"], np.maximum(-pitch, 0) / LOOK_ANGLES["Down"]],
+                            axis=-1), 0.0, 1.0)
+
+
+def eye_angles(looks: np.ndarray) -> np.ndarray:
+    """(..., 6) the eyes' yaw, pitch, roll (radians; the left eye's, then the right's) of (..., 8)
+    eyeLook curves (In, Out, Up, Down of the left eye, then the right's): yaw to the subject's left
+    and pitch down positive, as the head's (:data:`~faceanim.drivers.video.tracking.POSE_NAMES`)."""
+    from faceanim.rig.arkit import LOOK_ANGLES
+
+    w = np.asarray(looks, dtype=np.float64)
+    out = np.zeros(w.shape[:-1] + (6,))
+    for k, outward in ((0, 1.0), (1, -1.0)):
+        i, o, u, d = (w[..., 4 * k + j] for j in range(4))
+        out[..., 3 * k] = outward * (o * LOOK_ANGLES["Out"] - i * LOOK_ANGLES["In"])
+        out[..., 3 * k + 1] = d * LOOK_ANGLES["Down"] - u * LOOK_ANGLES["Up"]
+    return out
 
 
 def look_curves(tracking: Tracking, blinks: np.ndarray) -> np.ndarray:
     """(F, 8) the eyeLook curves (In, Out, Up, Down of the left eye, then the right's) from where
     the irises sit in the eyes (:attr:`Tracking.gaze`): each offset less the performer's median
-    (looking at the camera most of the time), turned into an angle on a sphere of
-    :data:`IRIS_RADIUS` eye widths, and into weights by the angles a Live Link Face take records at
-    weight 1 (:data:`~faceanim.rig.arkit.LOOK_ANGLES`). Held while the lid is shut (``blinks`` over
-    :data:`GAZE_HOLD`) or the face is lost; a 3-frame median. Zeros without gaze tracking."""
+    (looking at the camera most of the time), by :func:`look_weights`. Held while the lid is shut
+    (``blinks`` over :data:`GAZE_HOLD`) or the face is lost; a 3-frame median. Zeros without gaze
+    tracking."""
     from scipy.ndimage import median_filter
-
-    from faceanim.rig.arkit import LOOK_ANGLES
 
     n = tracking.n_frames
     if tracking.gaze is None:
@@ -185,12 +221,8 @@ def look_curves(tracking: Tracking, blinks: np.ndarray) -> np.ndarray:
         if not ok.any():
             out.append(np.zeros((n, 4)))
             continue
-        g = hold_untracked(g, ok) - np.median(g[ok], axis=0)
-        angle = np.arcsin(np.clip(g / IRIS_RADIUS, -1.0, 1.0))
-        yaw, pitch = outward * angle[:, 0], angle[:, 1]
-        look = np.stack([np.maximum(-yaw, 0) / LOOK_ANGLES["In"], np.maximum(yaw, 0) / LOOK_ANGLES["Out"],
-                         np.maximum(pitch, 0) / LOOK_ANGLES["Up"], np.maximum(-pitch, 0) / LOOK_ANGLES["Down"]], axis=1)
-        out.append(np.clip(median_filter(look, size=(3, 1), mode="nearest"), 0.0, 1.0))
+        look = look_weights(hold_untracked(g, ok) - np.median(g[ok], axis=0), outward)
+        out.append(median_filter(look, size=(3, 1), mode="nearest"))
     return np.hstack(out)
 
 
@@ -239,6 +271,27 @@ def rest_frames(values: np.ndarray, share: float = REST_SHARE) -> np.ndarray:
     return np.sort(np.argsort(local, kind="stable")[:max(1, int(round(share * len(v))))])
 
 
+MOUTH_FEATURES = ("mouth_corner_R", "mouth_corner_L", "upper_lip", "lower_lip")
+
+
+def feature_mouth(features: np.ndarray) -> np.ndarray:
+    """(F, 3) :func:`mouth_measures` of (F, 19, 2) tracked features, the gap taken between the
+    outer lips (the 19 features have no inner lips)."""
+    from faceanim.face.controls import FEATURE_NAMES
+
+    f = np.asarray(features, dtype=np.float64)[:, [FEATURE_NAMES.index(n) for n in MOUTH_FEATURES]]
+    m = mouth_measures(np.concatenate([np.zeros_like(f[:, :2]), f], axis=1))
+    m[:, 0] = f[:, 2, 1] - f[:, 3, 1]  # the outer lips' distance
+    return m
+
+
+def neutral_mouth() -> np.ndarray:
+    """(3,) the generic head's :func:`mouth_measures` at rest."""
+    from faceanim.face.generic_head import generic_head
+
+    return mouth_measures(generic_head().landmarks()[list(MOUTH_LANDMARKS)])
+
+
 def performer_mouth(tracking: Tracking) -> np.ndarray:
     """(F, 3) the performer's :func:`mouth_measures` for the generic head: the inner gap whole
     (about 0 with the lips together, on both; from the outer lips' change when the tracking has no
@@ -247,16 +300,10 @@ def performer_mouth(tracking: Tracking) -> np.ndarray:
     whole face) added to the head's neutral. The features are already in the generic head's units
     (the head's size taken out by the rigid landmarks). Untracked frames hold the last tracked
     value."""
-    from faceanim.face.controls import FEATURE_NAMES
-    from faceanim.face.generic_head import generic_head
-
-    rest = mouth_measures(generic_head().landmarks()[list(MOUTH_LANDMARKS)])
-    at = [FEATURE_NAMES.index(n) for n in ("mouth_corner_R", "mouth_corner_L", "upper_lip", "lower_lip")]
-    f = hold_untracked(tracking.features[:, at].reshape(tracking.n_frames, -1), tracking.tracked).reshape(-1, 4, 2)
-    m = mouth_measures(np.concatenate([np.zeros_like(f[:, :2]), f], axis=1))  # no inner lips among the features
-    m[:, 0] = f[:, 2, 1] - f[:, 3, 1]  # the outer lips' distance
-    still = rest_frames(m)
-    out = rest + m - np.median(m[still], axis=0)
+    n = tracking.n_frames
+    f = hold_untracked(tracking.features.reshape(n, -1), tracking.tracked).reshape(tracking.features.shape)
+    m = feature_mouth(f)
+    out = neutral_mouth() + m - np.median(m[rest_frames(m)], axis=0)
     if tracking.inner_gap is not None and np.isfinite(tracking.inner_gap[tracking.tracked]).all():
         out[:, 0] = hold_untracked(tracking.inner_gap[:, None], tracking.tracked)[:, 0]
     return out
@@ -404,23 +451,30 @@ UPPER_ARKIT = ("Eye", "Brow")  # ARKit curves of the upper face; all others are 
 
 
 def arkit_curves(perf: Performance, db: MotionDatabase) -> np.ndarray:
-    """(F, 52) ARKit curves (Live Link Face order) of a performance: the bases written as the
-    generic head's shapes (ICT names), the eyes' and brows' from the upper face's weights and the
-    rest from the lower face's, mapped back to ARKit's names, the blinks and the gaze as read off
-    the lids and irises (:func:`blink_curves`, :func:`look_curves`), clamped to [0, 1]."""
+    """(F, 52) ARKit curves (Live Link Face order) of a performance (:func:`arkit_weights`)."""
+    return arkit_weights(perf.weights, db)
+
+
+def arkit_weights(weights: np.ndarray, db: MotionDatabase) -> np.ndarray:
+    """(F, 52) ARKit curves (Live Link Face order) of (F, 2L + 10) performance weights
+    (:attr:`Performance.weights`): the bases written as the generic head's shapes (ICT names),
+    the eyes' and brows' from the upper face's weights and the rest from the lower face's, mapped
+    back to ARKit's names, the blinks and the gaze as read off the lids and irises
+    (:func:`blink_curves`, :func:`look_curves`), clamped to [0, 1]."""
     from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
 
+    w = np.atleast_2d(np.asarray(weights, dtype=np.float64))
     n_l = db.n_bases
-    lower = perf.weights[:, :n_l] @ db.basis_curves
-    upper = perf.weights[:, n_l:2 * n_l] @ db.basis_curves
+    lower = w[:, :n_l] @ db.basis_curves
+    upper = w[:, n_l:2 * n_l] @ db.basis_curves
     col = {n: i for i, n in enumerate(db.curve_names)}
-    out = np.zeros((perf.n_frames, len(ARKIT_NAMES)))
+    out = np.zeros((len(w), len(ARKIT_NAMES)))
     for a, name in enumerate(ARKIT_NAMES):
         parts = [col[n] for n in ict_name(name) if n in col]
         if parts:
             out[:, a] = (upper if name.startswith(UPPER_ARKIT) else lower)[:, parts].mean(axis=1)
     for k, name in enumerate(EYE_CONTROLS):
-        out[:, ARKIT_NAMES.index(name[0].upper() + name[1:])] = perf.weights[:, 2 * n_l + k]
+        out[:, ARKIT_NAMES.index(name[0].upper() + name[1:])] = w[:, 2 * n_l + k]
     return np.clip(out, 0.0, 1.0)
 
 
@@ -462,7 +516,7 @@ def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | 
                       size: int = 512, progress=None) -> Path:
     """Write a performance by the suffix of ``path``:
 
-    - ``.csv``: Live Link Face (:func:`arkit_curves`, the head's angles in radians);
+    - ``.csv``: Live Link Face (:func:`arkit_curves`, the head's and the eyes' angles in radians);
     - ``.glb``: ``face`` with one morph target per control of :func:`performance_rig`, each scaled
       by its basis's spread over the database (weights of about -1..1 for the database's motion;
       the scales are in the scene's ``extras.basis_spread``), the weights and the head's rotation
@@ -477,7 +531,8 @@ def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | 
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".csv":
-        return write_arkit_csv(path, arkit_curves(perf, db), perf.fps, np.radians(perf.pose[:, :3]))
+        eyes = eye_angles(perf.weights[:, 2 * db.n_bases + 2:2 * db.n_bases + 10])
+        return write_arkit_csv(path, arkit_curves(perf, db), perf.fps, np.radians(perf.pose[:, :3]), eyes)
     if face is None:
         raise FaceAnimError(f"a {suffix} output needs the face to animate")
     rig = performance_rig(face, db)
@@ -528,7 +583,7 @@ def write_take(path, take, face: Face | None = None, fps: float = 30.0, size: in
     suffix = path.suffix.lower()
     r = take.resample(fps)
     if suffix == ".csv":
-        return write_arkit_csv(path, r.weights, fps, r.head)
+        return write_arkit_csv(path, r.weights, fps, r.head, r.eyes)
     if face is None:
         raise FaceAnimError(f"a {suffix} output needs the face to animate")
     made, _ = arkit_shapes(face)

@@ -13,7 +13,7 @@ import re
 import sys
 from pathlib import Path
 
-from faceanim.cli import batch, facs, mesh, mpeg4, photo, rig, video, view, wires
+from faceanim.cli import batch, facs, live, mesh, mpeg4, photo, rig, video, view, wires
 from faceanim.cli.common import (
     DEFAULT_SIZE,
     FPS,
@@ -86,6 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=_cmd_demo)
     photo.register(sub)
     video.register(sub)
+    live.register(sub)
     for group in (mesh, rig, facs, wires, mpeg4, view, batch):
         group.register(sub)
     sub.metavar = "{" + ",".join(sub.choices) + "}"  # the commands, each once (not their aliases)

@@ -199,10 +199,12 @@ def _is_float(text: str) -> bool:
     return True
 
 
-def write_arkit_csv(path: str | os.PathLike, weights: np.ndarray, fps: float, head: np.ndarray | None = None):
+def write_arkit_csv(path: str | os.PathLike, weights: np.ndarray, fps: float, head: np.ndarray | None = None,
+                    eyes: np.ndarray | None = None):
     """Write a take as Live Link Face CSV (what :func:`read_arkit_csv`, Unreal's importer and
     spreadsheet users read): ``weights`` (F, 52) in :data:`ARKIT_NAMES` order, ``head`` (F, 3)
-    yaw, pitch, roll in radians (zeros if None), eyes' angles zero, timecodes from 00:00:00:00."""
+    yaw, pitch, roll in radians (zeros if None), ``eyes`` (F, 6) the left and the right eye's yaw,
+    pitch, roll in radians (zeros if None), timecodes from 00:00:00:00."""
     from pathlib import Path
 
     from faceanim.errors import FaceAnimError
@@ -210,13 +212,15 @@ def write_arkit_csv(path: str | os.PathLike, weights: np.ndarray, fps: float, he
 
     w = np.asarray(weights, dtype=np.float64)
     h = np.zeros((len(w), 3)) if head is None else np.asarray(head, dtype=np.float64)
-    if w.ndim != 2 or w.shape[1] != len(ARKIT_NAMES) or h.shape != (len(w), 3) or len(w) < 1:
-        raise FaceAnimError(f"an ARKit take needs (F, {len(ARKIT_NAMES)}) weights and (F, 3) head angles")
-    if not (np.all(np.isfinite(w)) and np.all(np.isfinite(h)) and 0 < fps <= 1000):
+    e = np.zeros((len(w), 6)) if eyes is None else np.asarray(eyes, dtype=np.float64)
+    if w.ndim != 2 or w.shape[1] != len(ARKIT_NAMES) or h.shape != (len(w), 3) or e.shape != (len(w), 6) \
+            or len(w) < 1:
+        raise FaceAnimError(f"an ARKit take needs (F, {len(ARKIT_NAMES)}) weights, (F, 3) head and (F, 6) eye angles")
+    if not (np.all(np.isfinite(w)) and np.all(np.isfinite(h)) and np.all(np.isfinite(e)) and 0 < fps <= 1000):
         raise FaceAnimError("an ARKit take needs finite weights and head angles and a frame rate in (0, 1000]")
     # as written (6 decimals), with no negative zeros: a weight of -1e-17 from a solver's last bit
     # would print as -0.000000 on one machine and 0.000000 on another
-    w, h = np.round(w, 6) + 0.0, np.round(h, 6) + 0.0
+    w, h, e = np.round(w, 6) + 0.0, np.round(h, 6) + 0.0, np.round(e, 6) + 0.0
     with atomic_output(path, "ARKit take") as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
         out = csv.writer(fh)
         out.writerow(["Timecode", "BlendShapeCount", *ARKIT_NAMES, *HEAD_NAMES, *EYE_NAMES])
@@ -226,5 +230,6 @@ def write_arkit_csv(path: str | os.PathLike, weights: np.ndarray, fps: float, he
             frames = (t - s) * TIMECODE_RATE
             code = f"{s // 3600:02d}:{s // 60 % 60:02d}:{s % 60:02d}:{frames:06.3f}"
             out.writerow([code, str(len(ARKIT_NAMES) + len(HEAD_NAMES) + len(EYE_NAMES)),
-                          *[f"{x:.6f}" for x in w[i]], *[f"{x:.6f}" for x in h[i]], *["0"] * len(EYE_NAMES)])
+                          *[f"{x:.6f}" for x in w[i]], *[f"{x:.6f}" for x in h[i]],
+                          *(f"{x:.6f}" if x else "0" for x in e[i])])
     return Path(path)

@@ -262,3 +262,45 @@ class Synthesiser:
             _, filtered, _ = self._local(padded[t:t + w_len].reshape(-1))
             out[t] = filtered.reshape(w_len, m)[-1]
         return out
+
+
+class SynthesisStream:
+    """:meth:`Synthesiser.synthesise` one frame at a time, for live input: :meth:`push` a query
+    frame, get back the newest *final* frame of motion, ``overlap - 1`` frames behind (None until
+    there is one). With ``overlap`` 1 there is no delay: each frame is the estimate of the segment
+    ending at it. The frames out are exactly those of :meth:`Synthesiser.synthesise` on the same
+    queries."""
+
+    def __init__(self, synthesiser: Synthesiser):
+        self.s = synthesiser
+        if self.s.graph is not None:
+            self.s.graph.reset()
+        self.recent: np.ndarray | None = None  # the last W query frames
+        self.pending: list[list] = []  # [sum of alpha * estimate, sum of alpha] of frames not yet final
+        self._offsets = np.arange(self.s.window - 1, -1, -1)
+
+    @property
+    def delay(self) -> int:
+        """Frames between a query pushed and its motion out."""
+        return self.s.overlap - 1
+
+    def push(self, query: np.ndarray) -> np.ndarray | None:
+        q = np.asarray(query, dtype=np.float64).reshape(-1)
+        m = self.s.db.controls.shape[1] // self.s.window
+        if q.shape != (m,) or not np.all(np.isfinite(q)):
+            raise FaceAnimError(f"a query frame must be {m} finite controls")
+        w_len, overlap = self.s.window, self.s.overlap
+        self.recent = np.repeat(q[None], w_len, axis=0) if self.recent is None else np.vstack([self.recent[1:], q])
+        nn, _, wts = self.s._local(self.recent.reshape(-1))
+        frames = self.s.db.ends[nn][:, None] - self._offsets[None]
+        est = np.tensordot(wts, self.s.markers[frames], axes=1)
+        self.pending.append([np.zeros(self.s.markers.shape[1:]), 0.0])
+        for j in range(min(overlap, len(self.pending))):
+            a = 0.5 * np.cos(j / overlap * np.pi) + 0.5
+            slot = self.pending[-1 - j]
+            slot[0] = slot[0] + a * est[w_len - 1 - j]
+            slot[1] += a
+        if len(self.pending) < overlap:
+            return None
+        total, weight = self.pending.pop(0)
+        return total / weight

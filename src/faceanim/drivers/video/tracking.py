@@ -145,30 +145,56 @@ def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np
     return pose, frontal[idx, :2]
 
 
+class FaceTracker:
+    """MediaPipe's face mesh in video mode (refined: 478 landmarks with the irises), one frame at a
+    time: ``tracker(rgb)`` -> (478, 3) landmarks in pixels with depth (x right, y down, z away from
+    the camera, scaled by the image width), or None where no face is found. A context manager."""
+
+    def __init__(self):
+        import os
+
+        from faceanim.io.files import native_stderr_quiet
+
+        os.environ.setdefault("GLOG_minloglevel", "2")
+        os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+        try:
+            import mediapipe as mp
+        except ImportError:
+            raise LandmarkError("video tracking needs mediapipe==0.10.21 (pip install mediapipe==0.10.21)") from None
+        with native_stderr_quiet():
+            self._fm = mp.solutions.face_mesh.FaceMesh(
+                static_image_mode=False, max_num_faces=1, refine_landmarks=True,
+                min_detection_confidence=0.5, min_tracking_confidence=0.5)
+
+    def __call__(self, frame: np.ndarray) -> np.ndarray | None:
+        h, w = frame.shape[:2]
+        result = self._fm.process(np.ascontiguousarray(frame))
+        if not result.multi_face_landmarks:
+            return None
+        return np.array([[p.x * w, p.y * h, p.z * w] for p in result.multi_face_landmarks[0].landmark])
+
+    def close(self) -> None:
+        self._fm.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
 def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | None = None,
                  progress=None) -> Tracking:
     """Track every frame (RGB arrays) of a clip; see the module docstring."""
-    import os
-
     from faceanim.io.files import native_stderr_quiet
 
-    os.environ.setdefault("GLOG_minloglevel", "2")
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
-    try:
-        import mediapipe as mp
-    except ImportError:
-        raise LandmarkError("video tracking needs mediapipe==0.10.21 (pip install mediapipe==0.10.21)") from None
     reference = generic_head().landmarks()
     rigid = rigid_landmarks()
     pose, feats, raw, tracked, gaze, gap = [], [], [], [], [], []
-    with native_stderr_quiet(), mp.solutions.face_mesh.FaceMesh(
-            static_image_mode=False, max_num_faces=1, refine_landmarks=True,
-            min_detection_confidence=0.5, min_tracking_confidence=0.5) as fm:
+    with native_stderr_quiet(), FaceTracker() as tracker:
         for frame in frames:
-            h, w = frame.shape[:2]
-            result = fm.process(np.ascontiguousarray(frame))
-            if result.multi_face_landmarks:
-                lm = np.array([[p.x * w, p.y * h, p.z * w] for p in result.multi_face_landmarks[0].landmark])
+            lm = tracker(frame)
+            if lm is not None:
                 p6, f19, g4, lips = pose_and_features(lm, rigid, reference, eyes_and_lips=True)
                 pose.append(p6)
                 feats.append(f19)

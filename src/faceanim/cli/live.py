@@ -1,0 +1,61 @@
+"""faceanim live: a camera or a clip drives ARKit curves in real time, sent to VMC apps, Unreal's
+Live Link and a Live Link Face CSV (:mod:`faceanim.live`)."""
+
+from __future__ import annotations
+
+import signal
+import sys
+from pathlib import Path
+
+from faceanim.cli.common import CommandError, _arg_type, check_outputs
+
+
+def _cmd_live(args) -> None:
+    from faceanim.live.pipeline import run_live
+    from faceanim.live.sinks import CsvSink, parse_sinks
+    from faceanim.live.sources import CameraSource, ClipSource
+
+    if (args.video is None) == (args.camera is None):
+        raise CommandError("give --video FILE or --camera N (one of them)")
+    # every sink checked before the source is opened (a camera light should not flash for a typo)
+    sinks = parse_sinks(args.to, 30.0, args.subject)
+    files = [s.path for s in sinks if isinstance(s, CsvSink)]
+    if len({p.resolve() for p in files}) < len(files):
+        raise CommandError("two --to csv: sinks name the same file; give each its own")
+    if args.video is not None and any(p.resolve() == Path(args.video).resolve() for p in files):
+        raise CommandError("a --to csv: file is the input video; give the take its own path")
+    check_outputs(*files)
+    source = ClipSource(args.video, seconds=args.seconds) if args.video is not None else \
+        CameraSource(args.camera, seconds=args.seconds)
+    for s in sinks:  # the rates now known
+        s.fps = source.fps
+    print(f"faceanim live: {source.name} ({source.fps:g} fps) -> {', '.join(s.label for s in sinks)}"
+          + ("" if args.video is not None else "; Ctrl-C stops"), file=sys.stderr)
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM stops as Ctrl-C does
+    try:
+        report = run_live(source, sinks, notice=lambda text: print(f"faceanim live: {text}", file=sys.stderr))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    if report.error:
+        print(f"faceanim live: {report.error}; stopped", file=sys.stderr)
+    print(("stopped: " if report.interrupted else "") + report.summary())
+    for p in report.written:
+        print(f"wrote {p}")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("live", help="a camera or a clip drives ARKit curves live: VMC apps, Unreal Live Link, CSV",
+                       description="Track a face live (a camera, or a clip played at its own frame rate), run the "
+                                   "performance synthesis of `faceanim perform` causally, and send ARKit's 52 curves "
+                                   "with the head's and eyes' angles to each --to: vmc://HOST:PORT (VSeeFace, VNyan, "
+                                   "Warudo, VMagicMirror; port 39539), livelink://HOST:PORT (Unreal's Live Link, "
+                                   "port 11111), csv:PATH (a Live Link Face CSV of the run, written when it stops). "
+                                   "Frames the compute cannot keep up with are dropped, and counted.")
+    p.add_argument("--video", metavar="FILE", help="a clip, played in real time; the run ends with it")
+    p.add_argument("--camera", type=_arg_type("--camera", 0, 63, integer=True), metavar="N", help="camera N")
+    p.add_argument("--to", action="append", default=[], metavar="SINK", required=True,
+                   help="where the curves go (repeatable): vmc://HOST:PORT, livelink://HOST:PORT or csv:PATH")
+    p.add_argument("--subject", default="faceanim", help="the Live Link subject name")
+    p.add_argument("--seconds", type=_arg_type("--seconds", 0.1, 86400.0), metavar="S",
+                   help="stop after S seconds (default: the clip's end, or Ctrl-C)")
+    p.set_defaults(func=_cmd_live)

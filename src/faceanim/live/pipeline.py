@@ -1,0 +1,102 @@
+"""``faceanim live``: the perform path with a clock. Capture, track, synthesise, send.
+
+The source captures in its own thread (:mod:`faceanim.live.sources`) and keeps only the newest
+frame; this loop takes it, tracks it (MediaPipe's face mesh in video mode), steps the
+:class:`~faceanim.live.performer.LivePerformer` and hands the sample to every sink
+(:mod:`faceanim.live.sinks`). Each frame carries its capture time; the latency reported is from
+capture to the last sink's send. Ctrl-C (or the source's end) stops the run; every sink is closed,
+so file sinks are complete.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from faceanim.live.performer import LivePerformer, LiveSample
+from faceanim.live.sinks import Sink
+from faceanim.live.sources import Source
+
+
+@dataclass
+class LiveReport:
+    """What a run did: frames ``captured`` by the source, ``processed`` and ``dropped`` (captured
+    but replaced before the compute took them), ``tracked`` (a face found), ``seconds`` of the run,
+    ``latency`` (s, per processed frame: capture to sent), ``written`` files, ``interrupted``, the
+    source's ``error`` (a camera gone) and the ``samples`` (kept when asked)."""
+
+    captured: int = 0
+    processed: int = 0
+    dropped: int = 0
+    tracked: int = 0
+    seconds: float = 0.0
+    latency: list = field(default_factory=list)
+    written: list = field(default_factory=list)
+    interrupted: bool = False
+    error: str | None = None
+    samples: list = field(default_factory=list)
+
+    @property
+    def fps(self) -> float:
+        return self.processed / self.seconds if self.seconds > 0 else 0.0
+
+    def summary(self) -> str:
+        lat = np.array(self.latency) * 1000
+        p50, p95 = (np.percentile(lat, [50, 95]) if len(lat) else (float("nan"),) * 2)
+        share = 100.0 * self.dropped / max(self.captured, 1)
+        return (f"{self.processed} frames in {self.seconds:.1f} s ({self.fps:.1f} fps), face found in {self.tracked}, "
+                f"{self.dropped} dropped ({share:.1f}%), latency p50 {p50:.0f} ms, p95 {p95:.0f} ms")
+
+
+def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None = None,
+             keep_samples: bool = False, tracker=None, notice=None) -> LiveReport:
+    """Run until the source ends or Ctrl-C; see the module docstring. ``notice(text)`` is told once
+    when the face has been lost for longer than the performer holds it."""
+    from faceanim.perform import LOST_HOLD
+
+    from faceanim.drivers.video.tracking import FaceTracker
+    from faceanim.io.files import native_stderr_quiet
+
+    performer = performer or LivePerformer()
+    report = LiveReport()
+    lost_since, said = None, False
+    with native_stderr_quiet():
+        tracker = tracker or FaceTracker()
+        tracker(np.zeros((64, 64, 3), dtype=np.uint8))  # MediaPipe's graph starts on its first frame
+    started = time.monotonic()
+    try:
+        source.start()
+        while True:
+            frame = source.slot.get()
+            if frame is None:
+                break
+            with native_stderr_quiet():
+                landmarks = tracker(frame.image)
+            sample: LiveSample = performer.step(landmarks, frame.time)
+            for sink in sinks:
+                sink.send(sample)
+            report.latency.append(time.monotonic() - frame.capture)
+            report.processed += 1
+            report.tracked += int(sample.tracked)
+            lost_since = None if sample.tracked else (frame.time if lost_since is None else lost_since)
+            if lost_since is not None and frame.time - lost_since > LOST_HOLD and not said and notice:
+                notice(f"no face in view for {LOST_HOLD:g} s: the avatar eases to rest until the face is back")
+                said = True
+            if keep_samples:
+                report.samples.append(sample)
+    except KeyboardInterrupt:
+        report.interrupted = True
+    finally:
+        source.stop()
+        tracker.close()
+        report.seconds = time.monotonic() - started
+        report.captured, report.dropped = source.slot.captured, source.slot.dropped
+        if source.slot.error is not None:
+            report.error = str(source.slot.error)
+        for sink in sinks:
+            written = sink.close()
+            if written is not None:
+                report.written.append(written)
+    return report

@@ -1,0 +1,170 @@
+"""Where live curves go: one registry of sinks, each named by a scheme in ``--to``.
+
+- ``vmc://HOST[:PORT]``: the VMC protocol over OSC/UDP (:mod:`faceanim.io.vmc`; port 39539), for
+  VSeeFace, VNyan, Warudo, VMagicMirror;
+- ``livelink://HOST[:PORT]``: Live Link Face's UDP packets (:mod:`faceanim.io.livelink`; port
+  11111), for Unreal's Live Link (subject ``--subject``);
+- ``csv:PATH``: a Live Link Face CSV of the whole run, written (atomically) when the run stops,
+  Ctrl-C included, on a uniform clock at the source's frame rate.
+
+A sink takes each :class:`~faceanim.live.performer.LiveSample` (``send``) and is closed once
+(``close``). Network sinks send to a resolved address and never wait: a datagram that cannot be
+sent (no route, nobody listening) is counted and said once on stderr, and the run goes on.
+"""
+
+from __future__ import annotations
+
+import socket
+import sys
+import uuid
+from pathlib import Path
+
+import numpy as np
+
+from faceanim.errors import FaceAnimError, shown
+from faceanim.io.arkit_csv import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
+from faceanim.live.performer import LiveSample
+
+SCHEMES = ("vmc", "livelink", "csv")
+MAX_SUBJECT = 64
+
+
+class Sink:
+    """A destination of live samples (see the module docstring)."""
+
+    label = "sink"
+
+    def send(self, sample: LiveSample) -> None:
+        raise NotImplementedError
+
+    def close(self) -> Path | None:
+        """Finish; a file sink returns the file it wrote."""
+        return None
+
+
+def _address(spec: str, scheme: str, default_port: int) -> tuple[int, tuple]:
+    rest = spec[len(scheme) + 3:]
+    host, sep, port = rest.rpartition(":") if ":" in rest else (rest, "", "")
+    if not sep:
+        host, port = rest, str(default_port)
+    host = host.strip("[]")
+    if not host or "/" in host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise FaceAnimError(f"--to {scheme}:// needs HOST:PORT (port 1-65535), as in {scheme}://127.0.0.1:{default_port}")
+    try:
+        infos = socket.getaddrinfo(host, int(port), type=socket.SOCK_DGRAM)
+    except (socket.gaierror, UnicodeError):
+        raise FaceAnimError(f"--to {scheme}://: the host '{shown(host, 60)}' is not known; give an IP address "
+                            "or a name this machine can resolve") from None
+    family, _, _, _, addr = sorted(infos, key=lambda i: i[0] != socket.AF_INET)[0]  # IPv4 first
+    return family, addr
+
+
+class UdpSink(Sink):
+    """Datagrams to one address; failures counted and said once."""
+
+    def __init__(self, family, addr, label: str):
+        self.addr, self.label = addr, label
+        self.sock = socket.socket(family, socket.SOCK_DGRAM)
+        self.sock.setblocking(False)
+        self.sent = self.failed = 0
+
+    def _send(self, data: bytes) -> None:
+        try:
+            self.sock.sendto(data, self.addr)
+            self.sent += 1
+        except OSError as exc:  # no route, the receiver gone (ICMP refused), a full buffer
+            if not self.failed:
+                reason = exc.strerror or type(exc).__name__
+                print(f"faceanim live: {self.label}: cannot send ({reason.lower()}); going on", file=sys.stderr)
+            self.failed += 1
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class VmcSink(UdpSink):
+    """``vmc://HOST:PORT``: one OSC bundle per frame (:func:`faceanim.io.vmc.encode_frame`), the
+    52 curves by their perfect-sync names."""
+
+    def __init__(self, spec: str):
+        from faceanim.io.vmc import DEFAULT_PORT
+
+        family, addr = _address(spec, "vmc", DEFAULT_PORT)
+        super().__init__(family, addr, f"vmc://{addr[0]}:{addr[1]}")
+
+    def send(self, sample: LiveSample) -> None:
+        from faceanim.io.vmc import encode_frame
+
+        self._send(encode_frame(dict(zip(ARKIT_NAMES, sample.arkit.tolist())), tuple(sample.head), sample.time))
+
+
+class LiveLinkSink(UdpSink):
+    """``livelink://HOST:PORT``: one Live Link Face packet per frame, subject ``subject``, frame
+    numbers at the source's ``fps``."""
+
+    def __init__(self, spec: str, subject: str, fps: float):
+        from faceanim.io.livelink import DEFAULT_PORT
+
+        family, addr = _address(spec, "livelink", DEFAULT_PORT)
+        super().__init__(family, addr, f"livelink://{addr[0]}:{addr[1]}")
+        self.subject, self.fps = subject, float(fps)
+        self.device = str(uuid.uuid5(uuid.NAMESPACE_URL, f"faceanim:{subject}")).upper()  # stable per subject
+
+    def send(self, sample: LiveSample) -> None:
+        from faceanim.io.livelink import encode_packet
+
+        values = dict(zip(ARKIT_NAMES, sample.arkit.tolist()))
+        values.update(zip(HEAD_NAMES, sample.head.tolist()))
+        values.update(zip(EYE_NAMES, sample.eyes.tolist()))
+        f = sample.time * self.fps
+        self._send(encode_packet(values, int(np.floor(f + 1e-9)), self.fps, self.subject, self.device,
+                                 float(f - np.floor(f + 1e-9))))
+
+
+class CsvSink(Sink):
+    """``csv:PATH``: every sample kept; on close, resampled to ``fps`` on the samples' own times
+    and written as Live Link Face CSV."""
+
+    def __init__(self, spec: str, fps: float):
+        self.path = Path(spec[len("csv:"):])
+        self.label = f"csv:{shown(self.path, 60, tail=True)}"
+        if not str(self.path) or self.path.suffix.lower() != ".csv":
+            raise FaceAnimError("--to csv:PATH needs a .csv path, as in csv:take.csv")
+        self.fps = float(fps)
+        self.times, self.rows = [], []
+
+    def send(self, sample: LiveSample) -> None:
+        self.times.append(sample.time)
+        self.rows.append(np.r_[sample.arkit, sample.head, sample.eyes])
+
+    def close(self) -> Path | None:
+        from faceanim.io.arkit_csv import write_arkit_csv
+
+        if not self.rows:
+            return None
+        t, rows = np.array(self.times), np.array(self.rows)
+        grid = np.arange(int(np.floor((t[-1] - t[0]) * self.fps + 1e-9)) + 1) / self.fps + t[0]
+        r = np.stack([np.interp(grid, t, c) for c in rows.T], axis=1)
+        n = len(ARKIT_NAMES)
+        return write_arkit_csv(self.path, r[:, :n], self.fps, r[:, n:n + 3], eyes=r[:, n + 3:])
+
+
+def parse_sinks(specs: list[str], fps: float, subject: str) -> list[Sink]:
+    """The sinks of ``--to`` values (each checked before anything starts: scheme, address, path)."""
+    if not specs:
+        raise FaceAnimError("give at least one --to (vmc://HOST:PORT, livelink://HOST:PORT or csv:PATH)")
+    if not subject or len(subject.encode("utf-8")) > MAX_SUBJECT or not subject.isprintable():
+        raise FaceAnimError(f"--subject must be 1 to {MAX_SUBJECT} printable characters")
+    sinks = []
+    for spec in specs:
+        scheme = spec.split(":", 1)[0].lower() if ":" in spec else spec.lower()
+        if scheme == "vmc" and spec.lower().startswith("vmc://"):
+            sinks.append(VmcSink(spec))
+        elif scheme == "livelink" and spec.lower().startswith("livelink://"):
+            sinks.append(LiveLinkSink(spec, subject, fps))
+        elif scheme == "csv" and not spec.lower().startswith("csv://"):
+            sinks.append(CsvSink(spec, fps))
+        else:
+            raise FaceAnimError(f"--to '{shown(spec, 60)}' is not a sink; give vmc://HOST:PORT, "
+                                "livelink://HOST:PORT or csv:PATH")
+    return sinks

@@ -1,0 +1,340 @@
+"""faceanim live: the causal performance, the VMC and Live Link packets, the sinks and the command.
+
+Oracles: the offline perform path on the same clip (the live curves must agree with it and with
+the video's own lip gap), python-osc's own server and dispatcher as the VMC receiver, and Live Link
+packets built byte by byte with struct from the layout Unreal reads.
+"""
+
+from __future__ import annotations
+
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from faceanim.errors import FaceAnimError, InputFileError
+from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
+from faceanim.io.livelink import PACKET_NAMES, decode_packet, encode_packet
+from faceanim.io.vmc import decode_frame, encode_frame, head_quaternion
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+CLIPS = DATA / "talking-head-videos"
+needs_clips = pytest.mark.skipif(not (CLIPS / "d18.mp4").exists(), reason="needs ../shared/data/talking-head-videos")
+
+
+# -- Live Link packets -----------------------------------------------------------------------------
+def test_livelink_packet_matches_the_layout_built_by_hand():
+    values = {n: (k + 1) / 100.0 for k, n in enumerate(PACKET_NAMES)}
+    got = encode_packet(values, frame=1234, fps=30, subject="Face", device="ABC", subframe=0.25)
+    want = (b"\x06" + struct.pack(">i", 3) + b"ABC" + struct.pack(">i", 4) + b"Face"
+            + struct.pack(">i", 1234) + struct.pack(">f", 0.25) + struct.pack(">ii", 30, 1) + bytes([61])
+            + b"".join(struct.pack(">f", (k + 1) / 100.0) for k in range(61)))
+    assert got == want
+    back = decode_packet(got)
+    assert (back.device, back.subject, back.frame, back.rate) == ("ABC", "Face", 1234, (30, 1))
+    assert back.values["JawOpen"] == pytest.approx(values["JawOpen"])
+    assert list(back.values) == list(PACKET_NAMES)
+    # Unreal's enum: jaw left before right, unlike the app's CSV columns
+    assert PACKET_NAMES.index("JawLeft") < PACKET_NAMES.index("JawRight")
+    assert set(PACKET_NAMES[:52]) == set(ARKIT_NAMES)
+
+
+def test_livelink_ntsc_rate_is_a_rational():
+    assert decode_packet(encode_packet({}, 0, 29.97, "s", "d")).rate == (30000, 1001)
+
+
+@pytest.mark.parametrize("cut", [b"", b"\x05", "short", "long", "nan"])
+def test_livelink_decode_refuses_broken_packets(cut):
+    good = encode_packet({"JawOpen": 0.5}, 1, 30, "s", "d")
+    data = {"short": good[:-3], "long": good + b"\x00", "nan": good[:-4] + struct.pack(">f", float("nan"))}.get(cut, cut)
+    if cut == b"\x05":
+        data = b"\x05" + good[1:]
+    with pytest.raises(InputFileError):
+        decode_packet(data)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=800))
+def test_livelink_decode_fuzz(data):
+    try:
+        decode_packet(data)
+    except InputFileError:
+        pass
+
+
+# -- VMC ---------------------------------------------------------------------------------------------
+def _rotate(q, v):
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_quat(q).apply(v)
+
+
+def test_vmc_head_quaternion_signs():
+    # Unity: x right (from the avatar's view), y up, z forward (the avatar faces +z)
+    assert _rotate(head_quaternion(0.3, 0, 0), [0, 0, 1])[0] < -0.25  # a turn to its own left
+    assert _rotate(head_quaternion(0, 0.3, 0), [0, 0, 1])[1] < -0.25  # a nod down
+    assert _rotate(head_quaternion(0, 0, 0.3), [0, 1, 0])[0] > 0.25  # a tilt to its right
+    assert np.allclose(head_quaternion(0, 0, 0), (0, 0, 0, 1))
+
+
+def test_vmc_frame_read_by_python_osc_dispatcher():
+    """python-osc's own dispatcher (what a VMC receiver built on it sees), not our decoder."""
+    from pythonosc.dispatcher import Dispatcher
+    from pythonosc.osc_server import BlockingOSCUDPServer
+
+    seen = []
+    d = Dispatcher()
+    d.set_default_handler(lambda address, *args: seen.append((address, args)))
+    server = BlockingOSCUDPServer(("127.0.0.1", 0), d)
+    port = server.server_address[1]
+    blends = {"JawOpen": 0.5, "EyeBlinkLeft": 1.0, "MouthSmileRight": 0.0}
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.sendto(encode_frame(blends, (0.1, 0.0, 0.0), 1.5), ("127.0.0.1", port))
+    server.timeout = 5
+    server.handle_request()
+    server.server_close()
+    addresses = [a for a, _ in seen]
+    assert addresses[0] == "/VMC/Ext/OK" and addresses[-1] == "/VMC/Ext/Blend/Apply"
+    vals = [args for a, args in seen if a == "/VMC/Ext/Blend/Val"]
+    assert [v[0] for v in vals] == list(blends) and [v[1] for v in vals] == pytest.approx(list(blends.values()))
+    bone = [args for a, args in seen if a == "/VMC/Ext/Bone/Pos"][0]
+    assert bone[0] == "Head" and len(bone) == 8
+    assert np.allclose(bone[4:], head_quaternion(0.1, 0, 0), atol=1e-6)
+    ours = decode_frame(encode_frame(blends, (0.1, 0.0, 0.0), 1.5))
+    assert ours["applied"] and ours["blends"] == pytest.approx(blends) and ours["time"] == pytest.approx(1.5)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=600))
+def test_vmc_decode_fuzz(data):
+    try:
+        decode_frame(data)
+    except InputFileError:
+        pass
+
+
+# -- the causal synthesis ----------------------------------------------------------------------------
+@pytest.mark.parametrize("overlap", [1, 2, 4])
+def test_synthesis_stream_gives_the_offline_frames(overlap):
+    from faceanim.drivers.video.synthesis import SynthesisStream, Synthesiser
+
+    rng = np.random.default_rng(3)
+    controls = np.cumsum(rng.normal(size=(300, 3)), axis=0)
+    markers = rng.normal(size=(300, 5))
+    query = controls[40:110] + 0.1 * rng.normal(size=(70, 3))
+    offline = Synthesiser(controls, markers, 5, 12, 0.99, overlap).synthesise(query)
+    stream = SynthesisStream(Synthesiser(controls, markers, 5, 12, 0.99, overlap))
+    out = [stream.push(q) for q in query]
+    assert all(o is None for o in out[:overlap - 1])
+    got = np.array(out[overlap - 1:])
+    assert np.allclose(got, offline[:len(got)], atol=1e-12)
+    assert stream.delay == overlap - 1
+
+
+# -- the live performer against the offline path, on a real clip ------------------------------------
+@pytest.fixture(scope="module")
+def d18_live_and_offline():
+    from faceanim.drivers.video.tracking import FaceTracker, track_video
+    from faceanim.io.video import video_frames, video_info
+    from faceanim.live.performer import LivePerformer
+    from faceanim.perform import arkit_curves, default_database, perform
+
+    clip = CLIPS / "d18.mp4"
+    info = video_info(clip)
+    lp = LivePerformer()
+    with FaceTracker() as tracker:
+        samples = [lp.step(tracker(f), i / info.fps) for i, f in enumerate(video_frames(info))]
+    tracking = track_video(clip)
+    return samples, tracking, arkit_curves(perform(tracking), default_database())
+
+
+@needs_clips
+def test_live_mouth_follows_the_video_as_offline_does(d18_live_and_offline):
+    samples, tracking, offline = d18_live_and_offline
+    live = np.array([s.arkit for s in samples])
+    assert live.shape == offline.shape and np.all((live >= 0) & (live <= 1))
+    j, c = ARKIT_NAMES.index("JawOpen"), ARKIT_NAMES.index("MouthClose")
+    gap = tracking.inner_gap
+    ok = np.isfinite(gap)
+    r_live = np.corrcoef((live[:, j] - live[:, c])[ok], gap[ok])[0, 1]
+    r_off = np.corrcoef((offline[:, j] - offline[:, c])[ok], gap[ok])[0, 1]
+    assert r_live >= 0.85 and r_live >= r_off - 0.03, (r_live, r_off)
+
+
+@needs_clips
+def test_live_blinks_close_and_head_turns_as_tracked(d18_live_and_offline):
+    samples, tracking, offline = d18_live_and_offline
+    live = np.array([s.arkit for s in samples])
+    b = ARKIT_NAMES.index("EyeBlinkLeft")
+    assert live[:, b].max() > 0.9  # d18 yawns with the eyes shut
+    assert np.corrcoef(live[:, b], offline[:, b])[0, 1] > 0.8
+    head = np.degrees(np.array([s.head for s in samples]))
+    ok = tracking.tracked
+    for k in range(3):  # the live One-Euro against the raw tracked angles
+        assert np.abs(head[ok, k] - tracking.pose[ok, k]).max() < 5.0
+
+
+def test_live_performer_holds_then_eases_a_lost_face():
+    from faceanim.face.generic_head import generic_head
+    from faceanim.live.performer import LivePerformer
+    from faceanim.perform import LOST_EASE, LOST_HOLD
+
+    # the generic head's own landmarks, seen by a camera: an open jaw
+    head = generic_head()
+    v = head.mesh.vertices + 1.0 * head.shape("jawOpen")
+    lm = head.landmarks(v)
+    px = np.c_[lm[:, 0] * 2000 + 256, -lm[:, 1] * 2000 + 256, -lm[:, 2] * 2000]
+    rest = head.landmarks()
+    px_rest = np.c_[rest[:, 0] * 2000 + 256, -rest[:, 1] * 2000 + 256, -rest[:, 2] * 2000]
+    lp = LivePerformer()
+    fps = 30.0
+    t = 0.0
+    for i in range(60):  # two seconds at rest, then open
+        lp.step(px_rest if i < 45 else px, t)
+        t += 1 / fps
+    jaw = ARKIT_NAMES.index("JawOpen")
+    opened = lp.step(px, t).arkit[jaw]
+    assert opened > 0.2
+    out = []
+    for i in range(int((LOST_HOLD + LOST_EASE + 0.5) * fps)):
+        t += 1 / fps
+        out.append(lp.step(None, t))
+    held = [s.arkit[jaw] for s in out if s.time - out[0].time < LOST_HOLD - 0.05]
+    assert np.allclose(held, opened)
+    assert out[-1].arkit[jaw] == pytest.approx(0.0, abs=1e-9)
+    assert not any(s.tracked for s in out)
+
+
+# -- the pipeline with a clip, receivers on 127.0.0.1 ---------------------------------------------
+@needs_clips
+def test_pipeline_sends_every_frame_to_vmc_livelink_and_csv(tmp_path):
+    from pythonosc.dispatcher import Dispatcher
+    from pythonosc.osc_server import ThreadingOSCUDPServer
+
+    from faceanim.live.pipeline import run_live
+    from faceanim.live.sinks import parse_sinks
+    from faceanim.live.sources import ClipSource
+
+    frames = []
+    current = {}
+
+    def on_val(address, name, value):
+        current[name] = value
+
+    def on_apply(address, *args):
+        frames.append(dict(current))
+        current.clear()
+
+    d = Dispatcher()
+    d.map("/VMC/Ext/Blend/Val", on_val)
+    d.map("/VMC/Ext/Blend/Apply", on_apply)
+    vmc = ThreadingOSCUDPServer(("127.0.0.1", 0), d)
+    threading.Thread(target=vmc.serve_forever, daemon=True).start()
+    ll = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ll.bind(("127.0.0.1", 0))
+    ll.settimeout(0.5)
+    packets = []
+
+    def listen():
+        while True:
+            try:
+                packets.append(decode_packet(ll.recv(4096)))
+            except (socket.timeout, OSError):
+                if stop.is_set():
+                    return
+
+    stop = threading.Event()
+    th = threading.Thread(target=listen, daemon=True)
+    th.start()
+    csv = tmp_path / "take.csv"
+    sinks = parse_sinks([f"vmc://127.0.0.1:{vmc.server_address[1]}", f"livelink://127.0.0.1:{ll.getsockname()[1]}",
+                         f"csv:{csv}"], 25.0, "Me")
+    source = ClipSource(CLIPS / "d0.mp4", realtime=False)
+    report = run_live(source, sinks, keep_samples=True)
+    time.sleep(0.5)
+    stop.set()
+    th.join()
+    vmc.shutdown()
+    vmc.server_close()
+    ll.close()
+    n = 78  # d0's frames
+    assert report.processed == n and report.dropped == 0 and report.written == [csv]
+    assert len(frames) == n and len(packets) == n
+    assert all(list(f) == list(ARKIT_NAMES) for f in frames)  # every curve, every frame, in order
+    assert all(0.0 <= v <= 1.0 for f in frames for v in f.values())
+    assert [p.frame for p in packets] == list(range(n)) and {p.subject for p in packets} == {"Me"}
+    sent = np.array([[f[k] for k in ARKIT_NAMES] for f in frames])
+    want = np.array([s.arkit for s in report.samples])
+    assert np.allclose(sent, want, atol=1e-6)
+    assert np.allclose([[p.values[k] for k in ARKIT_NAMES] for p in packets], want, atol=1e-6)
+    take = read_arkit_csv(csv)
+    assert take.n_samples == n and np.allclose(take.weights, np.round(want, 6), atol=2e-6)
+    assert np.allclose(take.head, np.round([s.head for s in report.samples], 6), atol=2e-6)
+    smile = ARKIT_NAMES.index("MouthSmileLeft")
+    assert want[:, smile].max() > 0.3  # d0's broad grin
+
+
+# -- the command ------------------------------------------------------------------------------------
+def _live(*args, timeout=120):
+    return subprocess.run([sys.executable, "-m", "faceanim", "live", *args], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+@pytest.mark.parametrize("to", ["osc://127.0.0.1:9000", "vmc://127.0.0.1:99999", "vmc://no.such.host.invalid:9000",
+                                "vmc://", "csv:", "csv:take.txt", "livelink://127.0.0.1:x", "viewer2"])
+def test_live_refuses_bad_sinks(tmp_path, to):
+    r = _live("--video", str(tmp_path / "none.mp4"), "--to", to)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--to" in r.stderr
+    assert not list(tmp_path.iterdir())
+
+
+def test_live_refuses_missing_sources_and_outputs(tmp_path):
+    r = _live("--camera", "63", "--to", f"csv:{tmp_path / 'x.csv'}")
+    assert r.returncode == 2 and "no camera 63" in r.stderr
+    r = _live("--video", str(tmp_path / "none.mp4"), "--to", f"csv:{tmp_path / 'x.csv'}")
+    assert r.returncode == 2 and "none.mp4" in r.stderr
+    r = _live("--to", f"csv:{tmp_path / 'x.csv'}")
+    assert r.returncode == 2
+    r = _live("--video", "a.mp4", "--to", f"csv:{tmp_path / 'no' / 'x.csv'}")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+    assert not list(tmp_path.iterdir())
+
+
+@needs_clips
+def test_live_command_stops_on_ctrl_c_with_the_csv_whole_and_survives_a_gone_receiver(tmp_path):
+    closed = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    closed.bind(("127.0.0.1", 0))
+    port = closed.getsockname()[1]
+    closed.close()  # nobody listens: the kernel answers each datagram with "port unreachable"
+    csv = tmp_path / "take.csv"
+    p = subprocess.Popen([sys.executable, "-m", "faceanim", "live", "--video", str(CLIPS / "d10.mp4"), "--to",
+                          f"vmc://127.0.0.1:{port}", "--to", f"csv:{csv}"], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    time.sleep(8.0)
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=60)
+    assert p.returncode == 0, err
+    assert out.startswith("stopped: ")
+    take = read_arkit_csv(csv)
+    processed = int(out.split("stopped: ")[1].split(" frames")[0])
+    assert processed > 30 and processed <= take.n_samples <= 15 * 30 + 1  # the clip's span, every frame on it
+    assert sum("cannot send" in line for line in err.splitlines()) <= 1
+    assert not [f for f in tmp_path.iterdir() if f.name != "take.csv"]
+
+
+def test_parse_sinks_checks_the_subject():
+    from faceanim.live.sinks import parse_sinks
+
+    with pytest.raises(FaceAnimError):
+        parse_sinks(["livelink://127.0.0.1"], 30.0, "x" * 100)
+    assert parse_sinks(["livelink://127.0.0.1"], 30.0, "Face")[0].addr == ("127.0.0.1", 11111)
+    assert parse_sinks(["vmc://localhost"], 30.0, "Face")[0].addr[1] == 39539
