@@ -201,11 +201,14 @@ def blas_line() -> str:
     return "; ".join(libs) + (f"; env {env}" if env else "; no OPENBLAS_*/OMP_* set")
 
 
-def arguments(doc: str, data: str | None = None) -> argparse.Namespace:
-    """The options every benchmark takes: ``--blas-threads`` and an optional data folder."""
+def arguments(doc: str, data: str | None = None, extra=()) -> argparse.Namespace:
+    """The options every benchmark takes: ``--blas-threads`` and an optional data folder; ``extra``:
+    (flag, add_argument keywords) of a script's own."""
     p = argparse.ArgumentParser(description=doc.strip().splitlines()[0])
     if data:
         p.add_argument("data", nargs="?", type=Path, help=data)
+    for flag, kw in extra:
+        p.add_argument(flag, **kw)
     p.add_argument("--blas-threads", type=int, default=None,
                    help="limit BLAS to this many threads for the whole run (default: leave as is)")
     return p.parse_args()

@@ -338,3 +338,114 @@ def test_parse_sinks_checks_the_subject():
         parse_sinks(["livelink://127.0.0.1"], 30.0, "x" * 100)
     assert parse_sinks(["livelink://127.0.0.1"], 30.0, "Face")[0].addr == ("127.0.0.1", 11111)
     assert parse_sinks(["vmc://localhost"], 30.0, "Face")[0].addr[1] == 39539
+
+
+# -- the viewer, in headless Chromium ----------------------------------------------------------------
+AVATAR = DATA / "avatars" / "vroid-sample.glb"
+
+
+def _live_page(browser, args, seconds=30.0):
+    """Start faceanim live with --to viewer:0 and open its page; returns (process, page)."""
+    p = subprocess.Popen([sys.executable, "-m", "faceanim", "live", *map(str, args), "--to", "viewer:0",
+                          "--no-browser"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    line = p.stderr.readline()
+    assert "http://127.0.0.1:" in line, line + p.stderr.read()
+    url = line.split("viewer ")[1].split()[0]
+    page = browser.new_page(viewport={"width": 640, "height": 480})
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    page.wait_for_function("window.viewer && (window.viewer.ready || window.viewer.error)", timeout=120_000)
+    assert page.evaluate("viewer.error") is None and not errors
+    return p, page
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from test_viewer import CHROMIUM, CHROMIUM_FLAGS, _browser_skip_reason
+
+    reason = _browser_skip_reason()
+    if reason:
+        pytest.skip(reason)
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS)
+        yield b
+        b.close()
+
+
+def _watch(page, name: str, seconds: float) -> list[float]:
+    """The page's weight of morph target ``name`` sampled every 50 ms."""
+    out = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        out.append(page.evaluate(f"viewer.weight({name!r})"))
+        page.wait_for_timeout(50)
+    return out
+
+
+@needs_clips
+def test_viewer_page_moves_the_default_face_live(browser):
+    proc, page = _live_page(browser, ["--video", CLIPS / "d18.mp4"])
+    try:
+        page.wait_for_function("faceanimLive.messages > 20", timeout=60_000)
+        assert page.evaluate("faceanimLive.matched") >= 50  # the default face's ARKit shapes, by name
+        jaw = _watch(page, "jawOpen", 3.0)
+        assert max(jaw) > 0.2 and len(set(jaw)) > 5  # d18 opens its jaw; the weight moves
+        lat = page.evaluate("faceanimLive.latencies")
+        assert len(lat) > 20 and all(x > -50 for x in lat)  # capture times on the page's clock, in ms
+    finally:
+        page.close()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+
+
+@needs_clips
+@pytest.mark.skipif(not AVATAR.exists(), reason="needs ../shared/data/avatars/vroid-sample.glb")
+def test_viewer_page_moves_a_vrm_avatar_by_its_arkit_names(browser):
+    """The VRoid avatar's face carries ARKit-named targets: they move, and three-vrm's expression
+    manager does not set them back to 0 each frame."""
+    proc, page = _live_page(browser, ["--video", CLIPS / "d18.mp4", "--face", AVATAR])
+    try:
+        page.wait_for_function("faceanimLive.messages > 20", timeout=60_000)
+        assert page.evaluate("faceanimLive.matched") >= 50
+        jaw = _watch(page, "jawOpen", 3.0)
+        assert max(jaw) > 0.2
+    finally:
+        page.close()
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=60)
+    assert proc.returncode == 0
+
+
+def test_viewer_stream_refuses_other_origins():
+    from websockets.exceptions import InvalidStatus
+    from websockets.sync.client import connect
+
+    from faceanim.live.viewer import ViewerSink
+    from faceanim.viewer.server import ViewerError
+
+    try:
+        sink = ViewerSink("viewer:0")
+    except ViewerError as exc:  # three.js not installed beside the page
+        pytest.skip(str(exc))
+    try:
+        url = sink.http.viewer.live["url"]
+        with pytest.raises(InvalidStatus):
+            connect(url, origin="http://evil.example", open_timeout=5).close()
+        port = sink.http.server_address[1]
+        with connect(url, origin=f"http://127.0.0.1:{port}", open_timeout=5) as ws:
+            deadline = time.monotonic() + 2
+            while not sink.clients and time.monotonic() < deadline:
+                time.sleep(0.01)
+            from faceanim.live.performer import LiveSample
+
+            sink.send(LiveSample(0.5, True, np.zeros(38), np.full(52, 0.25), np.zeros(3), np.zeros(6), 1.0))
+            import json
+
+            m = json.loads(ws.recv(timeout=5))
+            assert m["w"] == [0.25] * 52 and m["c"] == 1000.0 and m["t"] == 0.5
+    finally:
+        sink.close()

@@ -18,7 +18,21 @@ def _cmd_live(args) -> None:
     if (args.video is None) == (args.camera is None):
         raise CommandError("give --video FILE or --camera N (one of them)")
     # every sink checked before the source is opened (a camera light should not flash for a typo)
-    sinks = parse_sinks(args.to, 30.0, args.subject)
+    views = [t for t in args.to if t == "viewer" or t.startswith("viewer:")]
+    if args.face is not None and not views:
+        raise CommandError("--face is the avatar the viewer shows; give --to viewer too")
+    if args.face is not None:
+        from faceanim.viewer.server import check_model
+
+        check_model(args.face)
+    if len(views) > 1:
+        raise CommandError("give --to viewer once (one page serves any number of browsers)")
+    if views:
+        from faceanim.live.viewer import viewer_port
+
+        viewer_port(views[0])
+    others = [t for t in args.to if t not in views]
+    sinks = parse_sinks(others, 30.0, args.subject) if others else []
     files = [s.path for s in sinks if isinstance(s, CsvSink)]
     if len({p.resolve() for p in files}) < len(files):
         raise CommandError("two --to csv: sinks name the same file; give each its own")
@@ -27,10 +41,20 @@ def _cmd_live(args) -> None:
     check_outputs(*files)
     source = ClipSource(args.video, seconds=args.seconds) if args.video is not None else \
         CameraSource(args.camera, seconds=args.seconds)
-    for s in sinks:  # the rates now known
+    for s in sinks:  # the rate now known
         s.fps = source.fps
+    if views:
+        from faceanim.live.viewer import ViewerSink
+
+        sinks.append(ViewerSink(views[0], args.face))  # its servers start here
     print(f"faceanim live: {source.name} ({source.fps:g} fps) -> {', '.join(s.label for s in sinks)}"
-          + ("" if args.video is not None else "; Ctrl-C stops"), file=sys.stderr)
+          + ("" if args.video is not None else "; Ctrl-C stops"), file=sys.stderr, flush=True)
+    page = next((s.url for s in sinks if hasattr(s, "url")), None)
+    if page and not args.no_browser:
+        import threading
+        import webbrowser
+
+        threading.Thread(target=webbrowser.open, args=(page,), daemon=True).start()
     previous = signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM stops as Ctrl-C does
     try:
         report = run_live(source, sinks, notice=lambda text: print(f"faceanim live: {text}", file=sys.stderr))
@@ -44,18 +68,24 @@ def _cmd_live(args) -> None:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("live", help="a camera or a clip drives ARKit curves live: VMC apps, Unreal Live Link, CSV",
+    p = sub.add_parser("live", help="a camera or a clip drives ARKit curves live: VMC apps, Unreal Live Link, CSV, the viewer",
                        description="Track a face live (a camera, or a clip played at its own frame rate), run the "
                                    "performance synthesis of `faceanim perform` causally, and send ARKit's 52 curves "
                                    "with the head's and eyes' angles to each --to: vmc://HOST:PORT (VSeeFace, VNyan, "
                                    "Warudo, VMagicMirror; port 39539), livelink://HOST:PORT (Unreal's Live Link, "
-                                   "port 11111), csv:PATH (a Live Link Face CSV of the run, written when it stops). "
+                                   "port 11111), csv:PATH (a Live Link Face CSV of the run, written when it stops), "
+                                   "viewer[:PORT] (the faceanim view page with the avatar moving). "
                                    "Frames the compute cannot keep up with are dropped, and counted.")
     p.add_argument("--video", metavar="FILE", help="a clip, played in real time; the run ends with it")
     p.add_argument("--camera", type=_arg_type("--camera", 0, 63, integer=True), metavar="N", help="camera N")
     p.add_argument("--to", action="append", default=[], metavar="SINK", required=True,
-                   help="where the curves go (repeatable): vmc://HOST:PORT, livelink://HOST:PORT or csv:PATH")
+                   help="where the curves go (repeatable): vmc://HOST:PORT, livelink://HOST:PORT, csv:PATH or "
+                        "viewer[:PORT] (the faceanim view page, 8760 by default)")
     p.add_argument("--subject", default="faceanim", help="the Live Link subject name")
+    p.add_argument("--face", metavar="MODEL", help="the avatar --to viewer shows, a .glb or .vrm whose morph targets "
+                                                  "(or VRM expressions) carry ARKit's names (default: the default "
+                                                  "face with ARKit's shapes)")
+    p.add_argument("--no-browser", action="store_true", help="with --to viewer: do not open the page")
     p.add_argument("--seconds", type=_arg_type("--seconds", 0.1, 86400.0), metavar="S",
                    help="stop after S seconds (default: the clip's end, or Ctrl-C)")
     p.set_defaults(func=_cmd_live)

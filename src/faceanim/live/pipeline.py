@@ -75,6 +75,7 @@ def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None 
             with native_stderr_quiet():
                 landmarks = tracker(frame.image)
             sample: LiveSample = performer.step(landmarks, frame.time)
+            sample.capture = time.time() - (time.monotonic() - frame.capture)  # as the epoch, for a page
             for sink in sinks:
                 sink.send(sample)
             report.latency.append(time.monotonic() - frame.capture)

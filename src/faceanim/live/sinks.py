@@ -5,7 +5,8 @@
 - ``livelink://HOST[:PORT]``: Live Link Face's UDP packets (:mod:`faceanim.io.livelink`; port
   11111), for Unreal's Live Link (subject ``--subject``);
 - ``csv:PATH``: a Live Link Face CSV of the whole run, written (atomically) when the run stops,
-  Ctrl-C included, on a uniform clock at the source's frame rate.
+  Ctrl-C included, on a uniform clock at the source's frame rate;
+- ``viewer[:PORT]``: the ``faceanim view`` page with the avatar moving live (:mod:`faceanim.live.viewer`).
 
 A sink takes each :class:`~faceanim.live.performer.LiveSample` (``send``) and is closed once
 (``close``). Network sinks send to a resolved address and never wait: a datagram that cannot be
@@ -25,7 +26,7 @@ from faceanim.errors import FaceAnimError, shown
 from faceanim.io.arkit_csv import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
 from faceanim.live.performer import LiveSample
 
-SCHEMES = ("vmc", "livelink", "csv")
+SCHEMES = ("vmc", "livelink", "csv", "viewer")
 MAX_SUBJECT = 64
 
 
@@ -149,13 +150,18 @@ class CsvSink(Sink):
         return write_arkit_csv(self.path, r[:, :n], self.fps, r[:, n:n + 3], eyes=r[:, n + 3:])
 
 
-def parse_sinks(specs: list[str], fps: float, subject: str) -> list[Sink]:
-    """The sinks of ``--to`` values (each checked before anything starts: scheme, address, path)."""
+KINDS = "vmc://HOST:PORT, livelink://HOST:PORT, csv:PATH or viewer[:PORT]"
+
+
+def parse_sinks(specs: list[str], fps: float, subject: str, face=None) -> list[Sink]:
+    """The sinks of ``--to`` values (each checked before anything starts: scheme, address, path;
+    the viewer, which starts its servers, last). ``face``: the avatar the viewer shows (a .glb or
+    .vrm; the default face with ARKit's shapes if None)."""
     if not specs:
-        raise FaceAnimError("give at least one --to (vmc://HOST:PORT, livelink://HOST:PORT or csv:PATH)")
+        raise FaceAnimError(f"give at least one --to ({KINDS})")
     if not subject or len(subject.encode("utf-8")) > MAX_SUBJECT or not subject.isprintable():
         raise FaceAnimError(f"--subject must be 1 to {MAX_SUBJECT} printable characters")
-    sinks = []
+    sinks, viewers = [], []
     for spec in specs:
         scheme = spec.split(":", 1)[0].lower() if ":" in spec else spec.lower()
         if scheme == "vmc" and spec.lower().startswith("vmc://"):
@@ -164,7 +170,14 @@ def parse_sinks(specs: list[str], fps: float, subject: str) -> list[Sink]:
             sinks.append(LiveLinkSink(spec, subject, fps))
         elif scheme == "csv" and not spec.lower().startswith("csv://"):
             sinks.append(CsvSink(spec, fps))
+        elif scheme == "viewer" and (spec == "viewer" or spec[6:7] == ":"):
+            viewers.append(spec)
         else:
-            raise FaceAnimError(f"--to '{shown(spec, 60)}' is not a sink; give vmc://HOST:PORT, "
-                                "livelink://HOST:PORT or csv:PATH")
+            raise FaceAnimError(f"--to '{shown(spec, 60)}' is not a sink; give {KINDS}")
+    if len(viewers) > 1:
+        raise FaceAnimError("give --to viewer once (one page serves any number of browsers)")
+    if viewers:
+        from faceanim.live.viewer import ViewerSink
+
+        sinks.append(ViewerSink(viewers[0], face))
     return sinks

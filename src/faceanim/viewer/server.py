@@ -156,6 +156,7 @@ class Viewer:
         self.save_points = save_points
         self.lock = threading.Lock()
         self.saved = 0
+        self.live: dict | None = None  # faceanim live --to viewer: where the page finds the stream
 
     def info(self) -> dict:
         from faceanim.viewer.groups import group_targets, target_names
@@ -171,6 +172,7 @@ class Viewer:
                        for k, ph in enumerate(self.photos)],
             "save_points": str(self.save_points) if self.save_points else None,
             "names": point_names(),
+            "live": self.live,
         }
 
     def save(self, body: object) -> dict:

@@ -103,13 +103,24 @@ function weightOf(name) {
   return b && b.length ? b[0].mesh.morphTargetInfluences[b[0].index] : 0;
 }
 
+// a VRM's expression manager rewrites the morph weights of the meshes its expressions bind on every
+// update: weights set on morph targets directly are kept here and set again after each update
+const direct = new Map();  // morph name -> weight, for a .vrm
+
 function setWeight(name, value) {
   if (name.startsWith('vrm:')) {
     vrm.expressionManager.setValue(name.slice(4), value);
   } else {
     for (const { mesh, index } of viewer.bindings.get(name) || []) mesh.morphTargetInfluences[index] = value;
+    if (vrm) direct.set(name, value);
   }
   requestRender();
+}
+
+function reapplyDirect() {
+  for (const [name, value] of direct) {
+    for (const { mesh, index } of viewer.bindings.get(name) || []) mesh.morphTargetInfluences[index] = value;
+  }
 }
 viewer.setWeight = setWeight;
 viewer.weight = weightOf;
@@ -688,7 +699,59 @@ async function main() {
   setupPoints(info);
   await loadSound(info);
   resize();
+  if (info.live) startLive(info.live);
   viewer.ready = true;
+}
+
+// ------------------------------------------------------------------------------------ live
+// faceanim live --to viewer: ARKit curves over a WebSocket, applied by name as they arrive
+const live = { messages: 0, latencies: [], connected: false, closed: false };
+window.faceanimLive = live;
+
+function nameKey(name) {
+  // eyeBlink_L, EyeBlinkLeft, eye_blink_left, eyeBlinkL -> eyeblinkleft
+  return name.replace(/[._\s-]?L$/, 'Left').replace(/[._\s-]?R$/, 'Right').toLowerCase().replace(/[^a-z0-9]/g, '');
+}
+
+function liveTargets(names) {
+  // per ARKit curve: the avatar's morph targets or VRM expressions of that name (any spelling)
+  const byKey = new Map();
+  if (vrm && vrm.expressionManager) {
+    for (const e of vrm.expressionManager.expressions) byKey.set(nameKey(e.expressionName), 'vrm:' + e.expressionName);
+  }
+  for (const n of viewer.bindings.keys()) if (!byKey.has(nameKey(n))) byKey.set(nameKey(n), n);
+  const presets = { eyeBlinkLeft: 'blinkLeft', eyeBlinkRight: 'blinkRight', jawOpen: 'aa' };
+  return names.map((n) => byKey.get(nameKey(n)) || (vrm && presets[n] && byKey.get(nameKey(presets[n]))) || null);
+}
+
+function startLive(spec) {
+  const targets = liveTargets(spec.names);
+  live.matched = targets.filter((t) => t).length;
+  const box = new THREE.Box3().setFromObject(root);
+  const pivot = box.getCenter(new THREE.Vector3());
+  const headBone = vrm && vrm.humanoid && vrm.humanoid.getNormalizedBoneNode('head');
+  const euler = new THREE.Euler(0, 0, 0, 'YXZ');
+  const q = new THREE.Quaternion();
+  const ws = new WebSocket(spec.url);
+  ws.onopen = () => { live.connected = true; say(`live: ${live.matched} of ${spec.names.length} ARKit curves drive this avatar`); };
+  ws.onclose = () => { live.closed = true; };
+  ws.onmessage = (ev) => {
+    const m = JSON.parse(ev.data);
+    for (let k = 0; k < targets.length; k += 1) if (targets[k]) setWeight(targets[k], m.w[k]);
+    euler.set(m.h[1], m.h[0], m.h[2], 'YXZ');  // pitch about x, yaw about y, roll about z
+    q.setFromEuler(euler);
+    if (headBone) {
+      headBone.quaternion.copy(q);
+    } else {
+      root.quaternion.copy(q);
+      root.position.copy(pivot).sub(pivot.clone().applyQuaternion(q));
+    }
+    const now = performance.timeOrigin + performance.now();
+    live.messages += 1;
+    live.latencies.push(now - m.c);
+    if (live.latencies.length > 5000) live.latencies.shift();
+    dirty = true;
+  };
 }
 
 let last = performance.now() / 1000;
@@ -702,7 +765,7 @@ function loop(ms) {
     if (viewer.renders % 6 === 0) syncSliders();
   }
   for (const f of viewer.onFrame) f(now);
-  if (vrm) { vrm.update(dt); dirty = true; }
+  if (vrm) { vrm.update(dt); reapplyDirect(); dirty = true; }
   if (dirty || playing || viewer.onFrame.length) {
     dirty = false;
     renderer.render(scene, camera);

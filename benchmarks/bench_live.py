@@ -1,0 +1,127 @@
+"""faceanim live: a clip played in real time to a VMC receiver on 127.0.0.1, against offline perform.
+
+    .venv/bin/python benchmarks/bench_live.py ../shared/data [--blas-threads N] [--clips d10,d14]
+    (about 3 minutes: each clip is played in real time, then tracked once more offline)
+
+Per talking-head clip (``talking-head-videos/``), the clip is played at its own frame rate by
+``ClipSource`` (frame i captured at start + i / fps, newest frame only) through ``run_live`` to a
+VMC sink whose receiver (python-osc's server) runs in this process:
+
+- sustained frames per second (frames processed over the run), frames dropped (captured, then
+  replaced before the compute took them) and latency from each frame's capture to its datagram
+  sent (p50, p95);
+- the streamed jawOpen - mouthClose against the video's inner lip gap (MediaPipe, offline
+  tracking of every frame): Pearson r over the frames processed, and the same figure for offline
+  ``perform`` (the baseline: the whole clip known before any frame is synthesised);
+- per frame compute, warm: tracking (MediaPipe) and the live performer's step, against offline
+  ``perform``'s synthesis per frame (the whole clip at once);
+- cold: building the live performer (database, k-d trees, mouth maps) and MediaPipe's first frame;
+  the performer's retained and peak memory.
+
+Goals (issue 21): >= 30 fps sustained on a 30 fps clip, latency p50 <= 50 ms, p95 <= 100 ms,
+drops <= 2%, jaw r >= 0.85 and within 0.03 of offline. Nothing is asserted here.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+from _timing import arguments, blas_threads, fmt_bytes, fmt_time, header, table, traced
+
+from faceanim.drivers.video.tracking import FaceTracker, track_frames
+from faceanim.io.arkit_csv import ARKIT_NAMES
+from faceanim.io.video import video_frames, video_info
+from faceanim.live.performer import LivePerformer
+from faceanim.live.pipeline import run_live
+from faceanim.live.sinks import parse_sinks
+from faceanim.live.sources import ClipSource
+from faceanim.perform import arkit_curves, default_database, perform
+
+CLIPS = ("d0", "d3", "d9", "d10", "d14", "d18")
+
+
+def receiver():
+    from pythonosc.dispatcher import Dispatcher
+    from pythonosc.osc_server import ThreadingOSCUDPServer
+
+    count = {"apply": 0}
+    d = Dispatcher()
+    d.map("/VMC/Ext/Blend/Apply", lambda *a: count.__setitem__("apply", count["apply"] + 1))
+    server = ThreadingOSCUDPServer(("127.0.0.1", 0), d)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server, count
+
+
+def jaw_r(curves: np.ndarray, gap: np.ndarray) -> float:
+    j, c = ARKIT_NAMES.index("JawOpen"), ARKIT_NAMES.index("MouthClose")
+    ok = np.isfinite(gap)
+    return float(np.corrcoef((curves[:, j] - curves[:, c])[ok], gap[ok])[0, 1])
+
+
+def main() -> None:
+    args = arguments(__doc__, "the shared data folder (../shared/data)",
+                     extra=[("--clips", {"default": ",".join(CLIPS), "help": "clips to play, comma-separated"})])
+    blas_threads(args.blas_threads)
+    header("faceanim live: clips played in real time to VMC on 127.0.0.1")
+    folder = args.data / "talking-head-videos"
+    db = default_database()
+
+    t0 = time.perf_counter()
+    _, kept, peak = traced(lambda: LivePerformer(db))
+    t_build = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    with FaceTracker() as tr:
+        tr(np.zeros((64, 64, 3), dtype=np.uint8))
+        t_first = time.perf_counter() - t0
+    print(f"cold: live performer built in {fmt_time(t_build)} (retained {fmt_bytes(kept)}, peak {fmt_bytes(peak)}); "
+          f"MediaPipe's first frame {fmt_time(t_first)}\n")
+
+    rows, compute_rows = [], []
+    for name in args.clips.split(","):
+        clip = folder / f"{name}.mp4"
+        info = video_info(clip)
+        server, count = receiver()
+        port = server.server_address[1]
+        report = run_live(ClipSource(clip), parse_sinks([f"vmc://127.0.0.1:{port}"], info.fps, "bench"),
+                          LivePerformer(db), keep_samples=True)
+        time.sleep(0.2)
+        server.shutdown()
+        server.server_close()
+        # offline: every frame tracked, then perform (the baseline), timed per frame
+        frames = list(video_frames(info))
+        t0 = time.perf_counter()
+        tracking = track_frames(frames, info.fps)
+        t_track = (time.perf_counter() - t0) / len(frames)
+        t0 = time.perf_counter()
+        offline = arkit_curves(perform(tracking, db), db)
+        t_perform = (time.perf_counter() - t0) / len(frames)
+        idx = np.array([int(round(s.time * info.fps)) for s in report.samples])
+        live = np.array([s.arkit for s in report.samples])
+        gap = tracking.inner_gap
+        lat = np.array(report.latency) * 1000
+        r_live, r_off = jaw_r(live, gap[idx]), jaw_r(offline, gap)
+        rows.append([name, f"{info.fps:g}", str(report.processed), f"{report.fps:.1f}",
+                     f"{100 * report.dropped / max(report.captured, 1):.1f}%",
+                     f"{np.percentile(lat, 50):.0f}", f"{np.percentile(lat, 95):.0f}", str(count["apply"]),
+                     f"{r_live:.3f}", f"{r_off:.3f}", f"{r_live - r_off:+.3f}"])
+        # the live step alone, warm, on this clip's landmarks
+        lp = LivePerformer(db)
+        with FaceTracker() as tr:
+            marks = [tr(f) for f in frames]
+        t0 = time.perf_counter()
+        for i, lm in enumerate(marks):
+            lp.step(lm, i / info.fps)
+        t_step = (time.perf_counter() - t0) / len(frames)
+        compute_rows.append([name, fmt_time(t_track), fmt_time(t_step), fmt_time(t_perform),
+                             f"{t_step / t_perform:.2f}x"])
+    table(rows, ["clip", "fps", "frames", "sustained fps", "dropped", "latency p50 ms", "p95 ms", "VMC applies",
+                 "jaw r live", "jaw r offline", "live - offline"])
+    print()
+    table(compute_rows, ["clip", "tracking / frame", "live step / frame", "offline perform / frame (baseline)",
+                         "live / offline"])
+
+
+if __name__ == "__main__":
+    main()
