@@ -32,6 +32,7 @@ from _timing import arguments, blas_threads, fmt_bytes, fmt_time, header, table,
 
 from faceanim.drivers.video.tracking import FaceTracker, track_frames
 from faceanim.io.arkit_csv import ARKIT_NAMES
+from faceanim.io.files import native_stderr_quiet
 from faceanim.io.video import video_frames, video_info
 from faceanim.live.performer import LivePerformer
 from faceanim.live.pipeline import run_live
@@ -72,7 +73,7 @@ def main() -> None:
     _, kept, peak = traced(lambda: LivePerformer(db))
     t_build = time.perf_counter() - t0
     t0 = time.perf_counter()
-    with FaceTracker() as tr:
+    with native_stderr_quiet(), FaceTracker() as tr:
         tr(np.zeros((64, 64, 3), dtype=np.uint8))
         t_first = time.perf_counter() - t0
     print(f"cold: live performer built in {fmt_time(t_build)} (retained {fmt_bytes(kept)}, peak {fmt_bytes(peak)}); "
@@ -108,7 +109,7 @@ def main() -> None:
                      f"{r_live:.3f}", f"{r_off:.3f}", f"{r_live - r_off:+.3f}"])
         # the live step alone, warm, on this clip's landmarks
         lp = LivePerformer(db)
-        with FaceTracker() as tr:
+        with native_stderr_quiet(), FaceTracker() as tr:
             marks = [tr(f) for f in frames]
         t0 = time.perf_counter()
         for i, lm in enumerate(marks):

@@ -455,27 +455,36 @@ def arkit_curves(perf: Performance, db: MotionDatabase) -> np.ndarray:
     return arkit_weights(perf.weights, db)
 
 
-def arkit_weights(weights: np.ndarray, db: MotionDatabase) -> np.ndarray:
-    """(F, 52) ARKit curves (Live Link Face order) of (F, 2L + 10) performance weights
-    (:attr:`Performance.weights`): the bases written as the generic head's shapes (ICT names),
-    the eyes' and brows' from the upper face's weights and the rest from the lower face's, mapped
-    back to ARKit's names, the blinks and the gaze as read off the lids and irises
-    (:func:`blink_curves`, :func:`look_curves`), clamped to [0, 1]."""
+def arkit_matrix(db: MotionDatabase) -> np.ndarray:
+    """(2L + 10, 52) the linear map from performance weights (:attr:`Performance.weights`) to ARKit
+    curves (Live Link Face order) before clamping: the bases written as the generic head's shapes
+    (ICT names; ARKit's curves that ICT splits in two take their halves' mean), the eyes' and
+    brows' from the upper face's weights and the rest from the lower face's; the blinks and the
+    gaze (:data:`EYE_CONTROLS`) are their own curves."""
     from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
 
-    w = np.atleast_2d(np.asarray(weights, dtype=np.float64))
     n_l = db.n_bases
-    lower = w[:, :n_l] @ db.basis_curves
-    upper = w[:, n_l:2 * n_l] @ db.basis_curves
     col = {n: i for i, n in enumerate(db.curve_names)}
-    out = np.zeros((len(w), len(ARKIT_NAMES)))
+    m = np.zeros((2 * n_l + len(EYE_CONTROLS), len(ARKIT_NAMES)))
     for a, name in enumerate(ARKIT_NAMES):
         parts = [col[n] for n in ict_name(name) if n in col]
         if parts:
-            out[:, a] = (upper if name.startswith(UPPER_ARKIT) else lower)[:, parts].mean(axis=1)
+            rows = slice(n_l, 2 * n_l) if name.startswith(UPPER_ARKIT) else slice(0, n_l)
+            m[rows, a] = np.asarray(db.basis_curves)[:, parts].mean(axis=1)
     for k, name in enumerate(EYE_CONTROLS):
-        out[:, ARKIT_NAMES.index(name[0].upper() + name[1:])] = w[:, 2 * n_l + k]
-    return np.clip(out, 0.0, 1.0)
+        a = ARKIT_NAMES.index(name[0].upper() + name[1:])
+        m[:, a] = 0.0
+        m[2 * n_l + k, a] = 1.0
+    return m
+
+
+def arkit_weights(weights: np.ndarray, db: MotionDatabase, matrix: np.ndarray | None = None) -> np.ndarray:
+    """(F, 52) ARKit curves (Live Link Face order) of (F, 2L + 10) performance weights
+    (:attr:`Performance.weights`) through :func:`arkit_matrix` (given as ``matrix``, or made),
+    clamped to [0, 1]: the blinks and the gaze as read off the lids and irises
+    (:func:`blink_curves`, :func:`look_curves`)."""
+    m = arkit_matrix(db) if matrix is None else matrix
+    return np.clip(np.atleast_2d(np.asarray(weights, dtype=np.float64)) @ m, 0.0, 1.0)
 
 
 def performance_frames(perf: Performance, rig: Rig, face: Face, chunk: int = 64):

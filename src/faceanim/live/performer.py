@@ -41,6 +41,7 @@ from faceanim.perform import (
     UPPER_FACE,
     WINDOW,
     K,
+    arkit_matrix,
     arkit_weights,
     blink_closure,
     blink_dead_zone,
@@ -106,6 +107,7 @@ class LivePerformer:
         self.upper = SynthesisStream(Synthesiser(known[:, self.upper_cols], db.weights, window, k, 0.99, overlap,
                                                  db.take_starts, search))
         self.delay = (int(overlap) - 1) / db.fps
+        self.arkit = arkit_matrix(db)
         self.reference = generic_head().landmarks()
         self.rigid = rigid_landmarks()
         self.head_filter = OneEuro(HEAD_MIN_CUTOFF, HEAD_BETA)
@@ -158,7 +160,7 @@ class LivePerformer:
             self.fade = min(self.fade, 0.5 * (1.0 + np.cos(np.pi * beyond)))
         weights = self.expression * self.fade
         n_l = self.db.n_bases
-        return LiveSample(time, landmarks is not None, weights, arkit_weights(weights[None], self.db)[0],
+        return LiveSample(time, landmarks is not None, weights, arkit_weights(weights[None], self.db, self.arkit)[0],
                           self.head.copy(), eye_angles(weights[2 * n_l + 2:]))
 
     def _tracked(self, landmarks: np.ndarray, time: float) -> None:
