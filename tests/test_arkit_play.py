@@ -6,7 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pygltflib
 import pytest
+from gltf_reader import accessor
 
 from faceanim.cli import main
 from faceanim.face.face import Face
@@ -54,16 +56,24 @@ def _small_take(path: Path) -> None:
 
 
 def test_arkit_play_writes_glb_csv_and_mp4(tmp_path):
-    from faceanim.io.arkit_csv import read_arkit_csv
+    from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
     from faceanim.io.gltf import glb_json
+    from faceanim.rig.arkit import apple_name
 
     _small_take(tmp_path / "take.csv")
     assert run(["arkit", "play", tmp_path / "take.csv", "-o", tmp_path / "t.glb"]) == 0
     doc = glb_json(tmp_path / "t.glb")
-    assert doc["meshes"][0]["extras"]["targetNames"] == ["eyeBlinkLeft", "jawOpen"]  # the curves that move
+    names = doc["meshes"][0]["extras"]["targetNames"]
+    assert names == [apple_name(n) for n in ARKIT_NAMES]  # a whole ARKit rig, Apple's names
     anim = doc["animations"][0]
     assert [c["target"]["path"] for c in anim["channels"]] == ["weights", "rotation"]
     assert doc["accessors"][anim["samplers"][1]["output"]]["count"] == 20
+    # the weights as recorded, by name (read with the spec's own decoding)
+    gltf = pygltflib.GLTF2().load_binary(str(tmp_path / "t.glb"))
+    w = accessor(gltf, anim["samplers"][0]["output"]).reshape(20, len(names))
+    np.testing.assert_allclose(w[:, names.index("jawOpen")], np.linspace(0, 1, 20), atol=1e-6)
+    np.testing.assert_allclose(w[:, names.index("eyeBlinkLeft")], np.r_[np.zeros(5), np.ones(4), np.zeros(11)])
+    assert np.abs(np.delete(w, [names.index("jawOpen"), names.index("eyeBlinkLeft")], axis=1)).max() == 0
     assert run(["arkit", "play", tmp_path / "take.csv", "--fps", "60", "-o", tmp_path / "t.csv"]) == 0
     back = read_arkit_csv(tmp_path / "t.csv")
     assert back.n_samples == 39  # 19 intervals of 1/30 s at 60 fps

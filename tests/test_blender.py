@@ -212,15 +212,15 @@ def test_arkit_play_imports_with_apples_names(blender, tmp_path):
 
 @pytest.mark.skipif(not VIDEO.is_file(), reason="../shared/data/talking-head-videos is not here")
 def test_perform_imports_with_the_head_turning(blender, tmp_path):
-    """``faceanim perform``: the expression bases as shape keys, the head's rotation on the ``head``
+    """``faceanim perform``: the face's ARKit shapes as shape keys, the head's rotation on the ``head``
     node as an action on Blender's ``head`` empty (parent of ``head_offset``, parent of the mesh),
     and the evaluated mesh at whole frames where the file puts it, the rotation included. Its
-    weights leave [0, 1], so Blender's sliders are widened (see the test above)."""
+    weights stay in [0, 1]: it plays as written with Blender's sliders as they are."""
     from faceanim.cli import main
 
     glb = tmp_path / "perform.glb"
     assert main(["perform", str(VIDEO), "-o", str(glb)]) in (0, None)
-    report, arrays = check(blender, glb, "--widen-sliders")
+    report, arrays = check(blender, glb)
     assert_imports_as_written(report, arrays, glb)
     parents = {o["name"]: o["parent"] for o in report["objects"]}
     mesh = report["meshes"][0]["object"]

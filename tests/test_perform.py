@@ -8,7 +8,9 @@ import gzip
 from pathlib import Path
 
 import numpy as np
+import pygltflib
 import pytest
+from gltf_reader import accessor
 
 from faceanim.cli import main
 from faceanim.face.face import Face
@@ -251,10 +253,19 @@ def test_perform_command_writes_glb_csv_and_mp4(tmp_path, db):
 
     video = VIDEOS / "d0.mp4"
     glb, out_csv, mp4 = tmp_path / "p.glb", tmp_path / "p.csv", tmp_path / "p.mp4"
-    assert run(["perform", video, "--quiet", "-o", glb]) == 0
+    assert run(["perform", video, "--quiet", "--bases", "-o", glb]) == 0
     doc = glb_json(glb)
     targets = doc["meshes"][0]["extras"]["targetNames"]
     assert targets == [f"{r}_{k + 1:02d}" for r in ("lower", "upper") for k in range(db.n_bases)] + list(EYE_CONTROLS)
+    # by default: the face's ARKit targets, Apple's names, weights in 0..1, the CSV's curves
+    arkit_glb = tmp_path / "a.glb"
+    assert run(["perform", video, "--quiet", "-o", arkit_glb]) == 0
+    adoc = glb_json(arkit_glb)
+    names = adoc["meshes"][0]["extras"]["targetNames"]
+    assert names == [n[0].lower() + n[1:] for n in ARKIT_NAMES]
+    gltf = pygltflib.GLTF2().load_binary(str(arkit_glb))
+    w = accessor(gltf, adoc["animations"][0]["samplers"][0]["output"]).reshape(78, len(names))
+    assert w.min() >= 0.0 and w.max() <= 1.0 and w[:, names.index("jawOpen")].max() > 0.15  # d0 opens its lips
     anim = doc["animations"][0]
     assert [c["target"]["path"] for c in anim["channels"]] == ["weights", "rotation"]
     assert doc["accessors"][anim["samplers"][0]["input"]]["count"] == 78
@@ -272,6 +283,7 @@ def test_perform_command_writes_glb_csv_and_mp4(tmp_path, db):
     assert run(["perform", video, "--quiet", "-o", out_csv]) == 0
     take = read_arkit_csv(out_csv)
     assert take.n_samples == 78
+    np.testing.assert_allclose(w, take.weights, atol=2e-6)  # the glb plays the CSV's curves
     tr = track_video(video)
     mouth = tr.raw[:, CONTROL_NAMES.index("mouth_open")]
     jaw = take.weights[:, ARKIT_NAMES.index("JawOpen")]

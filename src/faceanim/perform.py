@@ -522,11 +522,14 @@ def side_by_side(video_frames, face_frames, size: int):
 
 
 def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | None = None, video=None,
-                      size: int = 512, progress=None) -> Path:
+                      size: int = 512, progress=None, bases: bool = False) -> Path:
     """Write a performance by the suffix of ``path``:
 
     - ``.csv``: Live Link Face (:func:`arkit_curves`, the head's and the eyes' angles in radians);
-    - ``.glb``: ``face`` with one morph target per control of :func:`performance_rig`, each scaled
+    - ``.glb``: ``face`` with ARKit's blendshapes as morph targets (Apple's names, weights 0..1:
+      :func:`write_arkit_gltf`), the curves and the head's rotation animated: it plays on any
+      ARKit rig and survives tools that clamp weights to 0..1;
+    - ``.glb`` with ``bases``: ``face`` with one morph target per control of :func:`performance_rig`, each scaled
       by its basis's spread over the database (weights of about -1..1 for the database's motion;
       the scales are in the scene's ``extras.basis_spread``), the weights and the head's rotation
       (a node ``head`` at :func:`head_pivot`) animated per frame;
@@ -545,6 +548,10 @@ def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | 
     if face is None:
         raise FaceAnimError(f"a {suffix} output needs the face to animate")
     rig = performance_rig(face, db)
+    if suffix == ".glb" and not bases:
+        extras = {"fps": perf.fps, **({"source": Path(video).name} if video is not None else {})}
+        return write_arkit_gltf(path, face, arkit_curves(perf, db), perf.fps, perf.quaternions(face.frame.rotation),
+                                "performance", extras)
     if suffix == ".glb":
         from faceanim.io.gltf import write_gltf
 
@@ -572,6 +579,26 @@ def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | 
             return write_video(path, side_by_side(video_frames(info), faces, size), fps=perf.fps, audio=sound,
                                progress=progress)
     raise FaceAnimError(f"unknown output kind '{shown(suffix)}'; write .glb, .mp4 or .csv")
+
+
+def write_arkit_gltf(path, face: Face, curves: np.ndarray, fps: float, rotations: np.ndarray, name: str,
+                     extras: dict, shapes: dict | None = None) -> Path:
+    """``face`` with ARKit's blendshapes as morph targets (:func:`~faceanim.rig.arkit.arkit_shapes`,
+    Apple's names, as ``faceanim rig`` makes them; ``shapes`` if already made) animated by
+    ``curves`` (F, 52) in Live Link Face order at ``fps``, the head's ``rotations`` (F, 4) on a node
+    ``head`` turning about :func:`head_pivot`. Every made shape is a target (a take or performance
+    that leaves one at 0 still gives a full ARKit rig); the eyeballs turn by the eyeLook targets."""
+    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.io.gltf import write_gltf
+    from faceanim.rig.arkit import apple_name, arkit_shapes
+
+    made = shapes if shapes is not None else arkit_shapes(face)[0]
+    column = {apple_name(n): k for k, n in enumerate(ARKIT_NAMES)}
+    names = [n for n in made if n in column]
+    w = np.clip(np.asarray(curves, dtype=np.float64)[:, [column[n] for n in names]], 0.0, 1.0)
+    extras = dict(extras, morph_sets={"arkit": names})
+    return write_gltf(path, face.mesh, {n: made[n] for n in names}, times=np.arange(len(w)) / fps, weights=w,
+                      animation_name=name, rotations=rotations, pivot=head_pivot(face), extras=extras)
 
 
 def write_take(path, take, face: Face | None = None, fps: float = 30.0, size: int = 512, progress=None) -> Path:
@@ -603,15 +630,10 @@ def write_take(path, take, face: Face | None = None, fps: float = 30.0, size: in
     pose[:, :3] = np.degrees(r.head)
     perf = Performance(fps, curves, pose, np.ones(r.n_samples, dtype=bool))
     if suffix == ".glb":
-        from faceanim.io.gltf import write_gltf
-
-        used = [k for k in range(rig.n_controls) if np.abs(curves[:, k]).max() > 0]
-        if not used:
+        if not np.abs(r.weights).max() > 0:
             raise FaceAnimError("the take moves no blendshape; give a recording of a moving face")
-        shapes = {rig.controls[k]: rig.blendshape(rig.controls[k]) for k in used}
-        return write_gltf(path, face.mesh, shapes, times=np.arange(r.n_samples) / fps, weights=curves[:, used],
-                          animation_name="take", rotations=perf.quaternions(face.frame.rotation),
-                          pivot=head_pivot(face), extras={"fps": fps, "source": Path(take.source).name})
+        return write_arkit_gltf(path, face, r.weights, fps, perf.quaternions(face.frame.rotation), "take",
+                                {"fps": fps, "source": Path(take.source).name}, shapes=made)
     if suffix == ".mp4":
         from faceanim.render.gl import OffscreenRenderer
         from faceanim.render.video import write_video

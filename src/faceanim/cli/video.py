@@ -161,7 +161,7 @@ def _cmd_perform(args) -> None:
                f"{db.n_frames} database frames (W={used['window']}, K={used['k']}, "
                f"delay {1000 * used['delay']:.0f} ms)")
     with progress(perf.n_frames if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
-        written = write_performance(out, perf, db, face, args.video, args.size, bar)
+        written = write_performance(out, perf, db, face, args.video, args.size, bar, bases=args.bases)
     print(f"tracked {int(tr.tracked.sum())} of {tr.n_frames} frames at {tr.fps:g} fps; {how}; "
           f"{db.n_bases} deformation bases")
     report([written])
@@ -233,8 +233,9 @@ def register(sub) -> None:
                        description="Track the performer in VIDEO, turn the 15 control parameters into real motion "
                                    "from a motion database (filtering and synthesis on segments; the shipped "
                                    "database unless --db), retarget its deformation bases onto the face (the "
-                                   "default face unless --face) and write .glb (one morph target per basis, "
-                                   "weights and the head's rotation animated), .mp4 (the video and the face side "
+                                   "default face unless --face) and write .glb (the face's ARKit blendshapes as "
+                                   "morph targets, Apple's names, weights 0..1, and the head's rotation animated; "
+                                   "--bases: one target per deformation basis instead), .mp4 (the video and the face side "
                                    "by side, with the video's sound) or .csv (Live Link Face: ARKit's 52 curves "
                                    "and the head angles).")
     p.add_argument("video", metavar="VIDEO", help="a video file of a performer (MP4, MOV, MKV, AVI, WebM)")
@@ -255,6 +256,9 @@ def register(sub) -> None:
                    help="the frame with the performer's neutral face (default: found automatically)")
     p.add_argument("--size", type=_even("--size", 64, 1024), default=512,
                    help="MP4 height in pixels (even)")
+    p.add_argument("--bases", action="store_true",
+                   help=".glb: one morph target per deformation basis (lower_01 ..., upper_01 ..., weights about "
+                        "-1..1) instead of ARKit's 52")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     add_output(p, [".glb", ".mp4", ".csv"])
     p.set_defaults(func=_cmd_perform)
