@@ -165,3 +165,88 @@ def test_say_writes_live_link_face_csv(tmp_path):
     take = read_arkit_csv(tmp_path / "s.csv")
     jaw = take.weights[:, ARKIT_NAMES.index("JawOpen")]
     assert take.n_samples > 20 and jaw.max() > 0.2 and jaw.min() < 0.1  # the mouth opens and closes
+
+
+def test_arkit_play_onto_the_avatars_own_targets(tmp_path):
+    """A face rigged with ARKit's shapes, its jawOpen then edited (as in Blender: here doubled) and
+    renamed to another spelling (JawOpen): `arkit play --face` plays the take onto the file's own
+    targets by name, keeps the edit, and adds one animation whose weights are the take's."""
+    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.io.gltf import glb_json
+    from faceanim.io.scene import read_scene, write_scene
+
+    _small_take(tmp_path / "take.csv")
+    rigged, edited, out = tmp_path / "rigged.glb", tmp_path / "edited.glb", tmp_path / "played.glb"
+    assert run(["rig", "--set", "arkit", "-o", rigged]) == 0
+    scene = read_scene(rigged)
+    mi = next(m.index for m in scene.meshes() if "jawOpen" in m.target_names)
+    jaw = scene.targets(mi, ["jawOpen"])["jawOpen"]
+    write_scene(scene, edited, {mi: {"jawOpen": 2.0 * jaw}}, replace=True)
+    doc = glb_json(edited)
+    doc_names = doc["meshes"][mi]["extras"]["targetNames"]
+    doc_names[doc_names.index("jawOpen")] = "JawOpen"  # another tool's spelling
+    from faceanim.io.scene import _glb
+
+    blob = edited.read_bytes()
+    json_len = int.from_bytes(blob[12:16], "little")
+    import json
+
+    text = json.dumps(doc, separators=(",", ":")).encode("ascii")
+    edited.write_bytes(_glb(text, blob[20 + json_len + 8:]))
+    before = glb_json(edited)
+    assert run(["arkit", "play", tmp_path / "take.csv", "--face", edited, "-o", out]) == 0
+    after = glb_json(out)
+    assert len(after["animations"]) == len(before.get("animations", [])) + 1
+    assert after["meshes"][mi]["extras"]["targetNames"] == before["meshes"][mi]["extras"]["targetNames"]
+    played = read_scene(out)
+    np.testing.assert_allclose(played.targets(mi, ["JawOpen"])["JawOpen"], 2.0 * jaw, atol=1e-6)  # the edit kept
+    gltf = pygltflib.GLTF2().load_binary(str(out))
+    anim = after["animations"][-1]
+    names = after["meshes"][mi]["extras"]["targetNames"]
+    w = accessor(gltf, anim["samplers"][0]["output"]).reshape(20, len(names))
+    np.testing.assert_allclose(w[:, names.index("JawOpen")], np.linspace(0, 1, 20), atol=1e-6)
+    np.testing.assert_allclose(w[:, names.index("eyeBlinkLeft")], np.r_[np.zeros(5), np.ones(4), np.zeros(11)])
+    assert {c["target"]["path"] for c in anim["channels"]} == {"weights"}
+    assert len(names) == len(ARKIT_NAMES)
+
+
+def test_arkit_play_vrm_output_needs_a_vrm_avatar(tmp_path, capsys):
+    _small_take(tmp_path / "take.csv")
+    assert run(["arkit", "play", tmp_path / "take.csv", "-o", tmp_path / "x.vrm"]) == 2
+    assert "--face VRM avatar" in capsys.readouterr().err and not (tmp_path / "x.vrm").exists()
+
+
+VROID = DATA / "avatars" / "vroid-sample.glb"
+
+
+@pytest.mark.skipif(not VROID.exists(), reason="needs ../shared/data/avatars/vroid-sample.glb")
+def test_arkit_play_onto_a_whole_vroid_avatar(tmp_path):
+    """A skinned, multi-mesh VRoid export whose face mesh carries ARKit-named targets: every node,
+    mesh and target kept, one animation added that drives the face mesh's 52; the Khronos validator
+    finds no error where it is installed."""
+    import json
+    import shutil
+    import subprocess
+
+    from faceanim.io.gltf import glb_json
+
+    _small_take(tmp_path / "take.csv")
+    out = tmp_path / "vroid.glb"
+    assert run(["arkit", "play", tmp_path / "take.csv", "--face", VROID, "-o", out]) == 0
+    a, b = glb_json(VROID), glb_json(out)
+    assert len(b["nodes"]) == len(a["nodes"]) and len(b["meshes"]) == len(a["meshes"])
+    assert [m.get("extras", {}).get("targetNames") for m in b["meshes"]] == \
+        [m.get("extras", {}).get("targetNames") for m in a["meshes"]]
+    assert len(b["animations"]) == len(a.get("animations", [])) + 1
+    anim = b["animations"][-1]
+    face = {b["nodes"][c["target"]["node"]]["mesh"] for c in anim["channels"]}
+    names = b["meshes"][face.pop()]["extras"]["targetNames"]
+    gltf = pygltflib.GLTF2().load_binary(str(out))
+    w = accessor(gltf, anim["samplers"][0]["output"]).reshape(20, len(names))
+    np.testing.assert_allclose(w[:, names.index("jawOpen")], np.linspace(0, 1, 20), atol=1e-6)
+    assert np.all(w[:, [k for k, n in enumerate(names) if n.startswith("Fcl_")]] == 0)  # its own presets rest
+    validator = Path(__file__).resolve().parents[1] / "tools" / "validate_gltf.js"
+    if shutil.which("node") and (validator.parent / "node_modules" / "gltf-validator").exists():
+        report = json.loads(subprocess.run(["node", str(validator), str(out)], capture_output=True, text=True,
+                                           check=True).stdout)
+        assert report["numErrors"] == 0

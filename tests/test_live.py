@@ -404,15 +404,45 @@ def test_viewer_page_moves_the_default_face_live(browser):
 
 @needs_clips
 @pytest.mark.skipif(not AVATAR.exists(), reason="needs ../shared/data/avatars/vroid-sample.glb")
-def test_viewer_page_moves_a_vrm_avatar_by_its_arkit_names(browser):
-    """The VRoid avatar's face carries ARKit-named targets: they move, and three-vrm's expression
-    manager does not set them back to 0 each frame."""
+def test_viewer_page_moves_a_whole_avatar_by_its_arkit_names(browser):
+    """The VRoid avatar (a skinned, multi-mesh glb exported from VRoid) has ARKit-named targets on its
+    face mesh: they move with the clip."""
     proc, page = _live_page(browser, ["--video", CLIPS / "d18.mp4", "--face", AVATAR])
     try:
         page.wait_for_function("faceanimLive.messages > 20", timeout=60_000)
         assert page.evaluate("faceanimLive.matched") >= 50
         jaw = _watch(page, "jawOpen", 3.0)
         assert max(jaw) > 0.2
+    finally:
+        page.close()
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=60)
+    assert proc.returncode == 0
+
+
+@needs_clips
+def test_viewer_page_moves_a_vrm_and_three_vrm_keeps_the_weights(browser, tmp_path):
+    """A .vrm (the default face rigged with ARKit's shapes as VRM 1.0 custom expressions): the curves
+    reach its expressions by name, and a morph weight set directly survives three-vrm's expression
+    manager, which used to set it back to 0 on its next update."""
+    vrm = tmp_path / "face.vrm"
+    r = subprocess.run([sys.executable, "-m", "faceanim", "rig", "--set", "arkit", "-o", str(vrm)], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    proc, page = _live_page(browser, ["--video", CLIPS / "d18.mp4", "--face", vrm])
+    try:
+        page.wait_for_function("faceanimLive.messages > 20", timeout=60_000)
+        assert page.evaluate("faceanimLive.matched") >= 50
+        jaw = _watch(page, "jawOpen", 3.0)
+        assert max(jaw) > 0.2  # the expression manager sets the morph from the jawOpen expression
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=60)
+        page.wait_for_function("faceanimLive.closed", timeout=30_000)
+        # a morph weight set directly (a slider) is set again after each of three-vrm's updates
+        page.evaluate("viewer.setWeight('jawOpen', 1.0)")
+        n = page.evaluate("viewer.renders")
+        page.wait_for_function(f"viewer.renders > {n + 10}", timeout=30_000)
+        assert page.evaluate("viewer.weight('jawOpen')") == 1.0
     finally:
         page.close()
         proc.send_signal(signal.SIGINT)

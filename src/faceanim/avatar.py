@@ -225,3 +225,54 @@ def is_avatar(path) -> bool:
         return False
     meshes = doc.get("meshes") or []
     return bool(doc.get("skins")) or len(meshes) > 1 or Path(path).suffix.lower() == ".vrm"
+
+
+@dataclass
+class AvatarPlay:
+    """What :func:`play_on_avatar` drove: per mesh name, the ARKit curves that found a target."""
+
+    driven: dict
+    frames: int
+
+
+def arkit_targets(scene) -> dict[int, dict[int, int]]:
+    """The scene's morph targets named by ARKit (any spelling, :func:`~faceanim.io.arkit_csv.name_key`):
+    {mesh index: {target index: column of :data:`~faceanim.io.arkit_csv.ARKIT_NAMES`}}, meshes with
+    none left out."""
+    from faceanim.io.arkit_csv import ARKIT_NAMES, name_key
+
+    column = {name_key(n): k for k, n in enumerate(ARKIT_NAMES)}
+    out = {}
+    for info in scene.meshes():
+        found = {t: column[name_key(n)] for t, n in enumerate(info.target_names) if name_key(n) in column}
+        if found and info.nodes:
+            out[info.index] = found
+    return out
+
+
+def play_on_avatar(source, output, curves: np.ndarray, fps: float, name: str = "take") -> AvatarPlay:
+    """The avatar file ``source`` written to ``output`` as it was (meshes, skins, materials, its own
+    targets and animations, edits made in Blender), with one more animation, ``name``: ``curves``
+    (F, 52, Live Link Face order, clamped to 0..1) played onto its own morph targets by their ARKit
+    names, at ``fps``; its other targets stay at 0. Refused when no target carries an ARKit name."""
+    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.io.scene import read_scene, write_scene
+
+    scene = read_scene(source)
+    targets = arkit_targets(scene)
+    if not targets:
+        raise FaceAnimError(f"'{shown(Path(source).name, 60)}' has no morph target named by ARKit (jawOpen, "
+                            "eyeBlinkLeft ... in any spelling: JawOpen, eyeBlink_L); rig it first with faceanim rig")
+    w = np.clip(np.asarray(curves, dtype=np.float64), 0.0, 1.0)
+    info = {m.index: m for m in scene.meshes()}
+    weights, driven = {}, {}
+    for mi, found in targets.items():
+        rows = np.zeros((len(w), len(info[mi].target_names)))
+        for t, k in found.items():
+            rows[:, t] = w[:, k]
+        weights[mi] = rows
+        driven[info[mi].name] = sorted({ARKIT_NAMES[k] for k in found.values()}, key=ARKIT_NAMES.index)
+    write_scene(scene, output, {}, animation={"name": name, "times": np.arange(len(w)) / float(fps),
+                                              "weights": weights})
+    return AvatarPlay(driven, len(w))
+

@@ -145,7 +145,8 @@ def _cmd_perform(args) -> None:
         w, h = info.size
         check_video(info.frames_expected, max(2, int(round(w * args.size / h / 2)) * 2) + args.size, args.size)
     db = load_database(args.db) if args.db else default_database()
-    face = load_face(args) if suffix != ".csv" else None
+    own = not args.bases and _own_targets(args, suffix)
+    face = load_face(args) if suffix != ".csv" and not own else None
     with progress(info.frames_expected, "tracking", args.quiet) as bar:
         tr = track_frames(video_frames(info), info.fps, args.neutral_frame, bar)
     perf = perform(tr, db, raw=args.raw, window=args.window, k=args.k, overlap=args.overlap,
@@ -160,11 +161,43 @@ def _cmd_perform(args) -> None:
         how = (f"filtered and synthesised {'on the whole face' if args.whole_face else 'feature-wise'} from "
                f"{db.n_frames} database frames (W={used['window']}, K={used['k']}, "
                f"delay {1000 * used['delay']:.0f} ms)")
-    with progress(perf.n_frames if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
-        written = write_performance(out, perf, db, face, args.video, args.size, bar, bases=args.bases)
     print(f"tracked {int(tr.tracked.sum())} of {tr.n_frames} frames at {tr.fps:g} fps; {how}; "
           f"{db.n_bases} deformation bases")
+    if own:
+        from faceanim.perform import arkit_curves
+
+        _play_own(args, out, arkit_curves(perf, db), perf.fps, "performance")
+        return
+    with progress(perf.n_frames if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
+        written = write_performance(out, perf, db, face, args.video, args.size, bar, bases=args.bases)
     report([written])
+
+
+def _own_targets(args, suffix: str) -> bool:
+    """Whether the curves go onto the --face avatar's own morph targets by their ARKit names: the face
+    is a .glb/.vrm that has such targets and the output is .glb/.vrm. A .vrm output needs one."""
+    face = Path(args.face) if args.face else None
+    own = False
+    if face is not None and face.suffix.lower() in (".glb", ".vrm") and suffix in (".glb", ".vrm"):
+        from faceanim.avatar import arkit_targets
+        from faceanim.io.scene import read_scene
+
+        scene = read_scene(face)
+        own = bool(arkit_targets(scene))
+        vrm = bool({"VRMC_vrm", "VRM"} & set(scene.document.extensions or {}))
+    if suffix == ".vrm" and not (own and vrm):
+        raise CommandError("a .vrm output plays onto a --face VRM avatar whose morph targets carry ARKit's names; "
+                           "write .glb, or rig the avatar first with faceanim rig")
+    return own
+
+
+def _play_own(args, out: Path, curves, fps: float, name: str) -> None:
+    from faceanim.avatar import play_on_avatar
+
+    played = play_on_avatar(args.face, out, curves, fps, name)
+    for mesh, names in played.driven.items():
+        print(f"{len(names)} ARKit curves onto the avatar's own targets of mesh '{shown(mesh, 60)}'")
+    report([out])
 
 
 def _cmd_arkit_play(args) -> None:
@@ -181,6 +214,10 @@ def _cmd_arkit_play(args) -> None:
         from faceanim.limits import check_video
 
         check_video(n, args.size, args.size)
+    if _own_targets(args, suffix):
+        print(f"{n} frames ({take.duration:.1f} s) of the take at {args.fps:g} fps")
+        _play_own(args, out, take.resample(args.fps).weights, args.fps, "take")
+        return
     face = load_face(args) if suffix != ".csv" else None
     with progress(n if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
         written = write_take(out, take, face, args.fps, args.size, bar)
@@ -260,7 +297,7 @@ def register(sub) -> None:
                    help=".glb: one morph target per deformation basis (lower_01 ..., upper_01 ..., weights about "
                         "-1..1) instead of ARKit's 52")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    add_output(p, [".glb", ".mp4", ".csv"])
+    add_output(p, [".glb", ".vrm", ".mp4", ".csv"])
     p.set_defaults(func=_cmd_perform)
 
     a = sub.add_parser("arkit", help="Live Link Face recordings (Apple ARKit's 52 curves) played on any face")
@@ -269,11 +306,13 @@ def register(sub) -> None:
                          description="Play a recorded take (ARKit's 52 blendshape curves and the head's angles, as "
                                      "Live Link Face writes them) on the face (the default face unless --face): the "
                                      "generic head's ARKit shapes are retargeted onto it (Apple's names) and driven by the recorded curves. .glb: morph targets, weights "
-                                     "and head rotation animated; .mp4: rendered; .csv: the take resampled.")
+                                     "and head rotation animated; .mp4: rendered; .csv: the take resampled. A --face "
+                                     ".glb/.vrm avatar whose morph targets already carry ARKit's names (any spelling) "
+                                     "is played by name instead: the same avatar with one more animation (.glb/.vrm).")
     ap.add_argument("take", metavar="TAKE.csv", help="a Live Link Face CSV recording")
     add_face(ap, positional=False)
     ap.add_argument("--fps", type=_arg_type("--fps", 1, 240), default=30.0, help="frames per second of the output")
     ap.add_argument("--size", type=_even("--size", 64, 1024), default=512, help="MP4 pixels per side (even)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_output(ap, [".glb", ".mp4", ".csv"])
+    add_output(ap, [".glb", ".vrm", ".mp4", ".csv"])
     ap.set_defaults(func=_cmd_arkit_play)

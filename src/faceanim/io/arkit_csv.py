@@ -48,6 +48,15 @@ TIMECODE = re.compile(r"^(\d{1,2}):(\d{2}):(\d{2}):(\d{1,3}(?:\.\d+)?)$")
 PATH_SHOWN = 80
 
 
+def name_key(name: str) -> str:
+    """A blendshape name reduced for matching across spellings: ``eyeBlink_L``, ``EyeBlinkLeft``,
+    ``eye_blink_left``, ``eyeBlink.L`` -> ``eyeblinkleft`` (a trailing L/R after a separator, or a
+    capital L/R after a lower-case letter, is the side)."""
+    s = re.sub(r"(?:[._\s-]|(?<=[a-z]))L$", "Left", name.strip())
+    s = re.sub(r"(?:[._\s-]|(?<=[a-z]))R$", "Right", s)
+    return re.sub(r"[^a-z0-9]", "", s.lower())
+
+
 def ict_name(arkit: str) -> tuple[str, ...]:
     """The ICT FaceKit shape(s) an ARKit curve drives: first letter lower-cased, a side Left/Right
     -> _L/_R (JawLeft, MouthRight... are directions: jawLeft, mouthRight); BrowInnerUp and

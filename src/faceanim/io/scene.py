@@ -814,17 +814,24 @@ class _Appender:
         return self._accessor(g.Accessor(bufferView=view, componentType=g.FLOAT, count=len(d), type=g.VEC3,
                                          **bounds))
 
-    def scalars(self, values: np.ndarray) -> int:
-        view = self._view(np.ascontiguousarray(values, dtype=np.float32).tobytes())
-        return self._accessor(g.Accessor(bufferView=view, componentType=g.FLOAT, count=len(values),
-                                         type=g.SCALAR))
+    def scalars(self, values: np.ndarray, bounds: bool = False) -> int:
+        """Float32 scalars; with ``bounds``, their min and max (an animation's key times need them)."""
+        v = np.ascontiguousarray(values, dtype=np.float32)
+        view = self._view(v.tobytes())
+        extra = dict(min=[float(v.min())], max=[float(v.max())]) if bounds and len(v) else {}
+        return self._accessor(g.Accessor(bufferView=view, componentType=g.FLOAT, count=len(v), type=g.SCALAR, **extra))
 
 
-def write_scene(scene: Scene, path: str | os.PathLike, additions: Mapping, replace: bool = False) -> Path:
+def write_scene(scene: Scene, path: str | os.PathLike, additions: Mapping, replace: bool = False,
+                animation: dict | None = None) -> Path:
     """Write ``scene`` to ``path`` (``.glb`` or ``.vrm``, the same GLB container) atomically, with the
     morph targets ``additions`` = {mesh index: {name: (V, 3) world-space delta in
     :meth:`Scene.mesh_geometry`'s vertex order}} added to those meshes; everything else as it was read
-    (see the module doc). A name the mesh already has is refused unless ``replace``."""
+    (see the module doc). A name the mesh already has is refused unless ``replace``.
+
+    ``animation``: a new animation to add, ``{"name": str, "times": (F,) seconds, "weights": {mesh
+    index: (F, n) weights of that mesh's n targets (after the additions)}}``: one linear sampler per
+    mesh, one ``weights`` channel per node that shows the mesh."""
     path = Path(path)
     if path.suffix.lower() not in SCENE_SUFFIXES:
         raise MeshError(f"cannot write avatar '{shown(path, 80, tail=True)}': use the .glb or .vrm suffix")
@@ -861,6 +868,8 @@ def write_scene(scene: Scene, path: str | os.PathLike, additions: Mapping, repla
     widened: set = set()
     for mi, shapes in plan:
         _add_targets(scene, doc, out, mi, shapes, widened)
+    if animation is not None:
+        _add_animation(scene, doc, out, animation)
     if out.views:
         while len(out.data) % 4:
             out.data.append(0)
@@ -940,6 +949,29 @@ def _add_targets(scene: Scene, doc: g.GLTF2, out: _Appender, mi: int, shapes: di
                 scene._bad(f"animation {a} animates a number of weights that does not fit mesh {mi}'s targets")
             rows = values.reshape(-1, n_old)
             sampler.output = out.scalars(np.hstack([rows, np.zeros((len(rows), n_new - n_old))]).ravel())
+
+
+def _add_animation(scene: Scene, doc: g.GLTF2, out: _Appender, animation: dict) -> None:
+    times = np.asarray(animation.get("times"), dtype=np.float64).ravel()
+    if times.size < 1 or not np.isfinite(times).all() or (np.diff(times) <= 0).any() or times[0] < 0:
+        raise MeshError("an animation's key times must be finite, from 0 and increasing")
+    channels, samplers = [], []
+    time_acc = out.scalars(times, bounds=True)
+    for mesh_index, weights in sorted(animation.get("weights", {}).items()):
+        mi = scene._check_mesh(mesh_index)
+        n = len(doc.meshes[mi].primitives[0].targets or [])
+        w = np.asarray(weights, dtype=np.float64)
+        if w.shape != (len(times), n) or not np.isfinite(w).all():
+            raise MeshError(f"the animation of mesh '{shown(scene._mesh_name(mi))}' needs ({len(times)}, {n}) finite "
+                            "weights")
+        samplers.append(g.AnimationSampler(input=time_acc, output=out.scalars(w.ravel()), interpolation="LINEAR"))
+        for node in scene._users(mi):
+            channels.append(g.AnimationChannel(sampler=len(samplers) - 1,
+                                               target=g.AnimationChannelTarget(node=node, path="weights")))
+    if not channels:
+        raise MeshError("the animation drives no mesh shown by a node")
+    doc.animations = list(doc.animations or []) + [g.Animation(name=str(animation.get("name", "animation")),
+                                                               samplers=samplers, channels=channels)]
 
 
 def _plain(obj, raw):

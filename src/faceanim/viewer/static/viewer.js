@@ -710,7 +710,9 @@ window.faceanimLive = live;
 
 function nameKey(name) {
   // eyeBlink_L, EyeBlinkLeft, eye_blink_left, eyeBlinkL -> eyeblinkleft
-  return name.replace(/[._\s-]?L$/, 'Left').replace(/[._\s-]?R$/, 'Right').toLowerCase().replace(/[^a-z0-9]/g, '');
+  // as faceanim.io.arkit_csv.name_key: a trailing L/R after a separator or a lower-case letter is the side
+  return name.trim().replace(/(?:[._\s-]|(?<=[a-z]))L$/, 'Left').replace(/(?:[._\s-]|(?<=[a-z]))R$/, 'Right')
+    .toLowerCase().replace(/[^a-z0-9]/g, '');
 }
 
 function liveTargets(names) {
