@@ -193,3 +193,33 @@ def test_say_to_fap_is_for_any_face(tmp_path):
     lips = [3, 4, 7, 8]  # lower_t_midlip, raise_b_midlip, stretch and raise corners: columns FAP - 1
     assert np.abs(a.values[:, lips]).max() > 0
     np.testing.assert_allclose(np.abs(a.values[:, lips]).max(0), np.abs(b.values[:, lips]).max(0), rtol=0.25)
+
+
+def test_fap_play_glb_is_arkit_unless_faps(tmp_path):
+    """fap play -o x.glb: the face's ARKit shapes (Apple's names) with curves fitted to the stream,
+    weights in 0..1 (a smile for joy) and the head's rotation; --faps keeps one target per FAP."""
+    import pygltflib
+    from gltf_reader import accessor
+
+    from faceanim.face.faps import FapStream
+    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.io.fapfile import write_fap
+    from faceanim.io.gltf import glb_json
+
+    s = FapStream.empty(10, 25.0, "smile")
+    for name in ("stretch_l_cornerlip", "stretch_r_cornerlip", "raise_l_cornerlip", "raise_r_cornerlip"):
+        s.set(name, 300.0)
+    s.set("head_yaw", 20000.0)
+    write_fap(tmp_path / "s.fap", s)
+    assert main(["fap", "play", str(tmp_path / "s.fap"), "-o", str(tmp_path / "a.glb")]) == 0
+    doc = glb_json(tmp_path / "a.glb")
+    names = doc["meshes"][0]["extras"]["targetNames"]
+    assert names == [n[0].lower() + n[1:] for n in ARKIT_NAMES]
+    anim = doc["animations"][0]
+    assert [c["target"]["path"] for c in anim["channels"]] == ["weights", "rotation"]
+    w = accessor(pygltflib.GLTF2().load_binary(str(tmp_path / "a.glb")), anim["samplers"][0]["output"])
+    w = w.reshape(10, len(names))
+    assert w.min() >= 0 and w.max() <= 1 and w[:, names.index("mouthSmileLeft")].min() > 0.1
+    assert main(["fap", "play", str(tmp_path / "s.fap"), "--faps", "-o", str(tmp_path / "f.glb")]) == 0
+    faps = glb_json(tmp_path / "f.glb")["meshes"][0]["extras"]["targetNames"]
+    assert "stretch_l_cornerlip" in faps and "jawOpen" not in faps

@@ -581,8 +581,18 @@ def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | 
     raise FaceAnimError(f"unknown output kind '{shown(suffix)}'; write .glb, .mp4 or .csv")
 
 
+def head_quaternions(angles: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """(F, 4) glTF quaternions of the head's (F, 3) yaw, pitch, roll in radians (faceanim's signs,
+    :data:`~faceanim.drivers.video.tracking.POSE_NAMES`) in the coordinates of a mesh whose face
+    frame has ``axes`` (:meth:`Performance.rotations`)."""
+    a = np.asarray(angles, dtype=np.float64)
+    pose = np.zeros((len(a), 6))
+    pose[:, :3] = np.degrees(a)
+    return Performance(1.0, np.zeros((len(a), 0)), pose, np.ones(len(a), dtype=bool)).quaternions(axes)
+
+
 def write_arkit_gltf(path, face: Face, curves: np.ndarray, fps: float, rotations: np.ndarray, name: str,
-                     extras: dict, shapes: dict | None = None) -> Path:
+                     extras: dict, shapes: dict | None = None, quantize: bool = False) -> Path:
     """``face`` with ARKit's blendshapes as morph targets (:func:`~faceanim.rig.arkit.arkit_shapes`,
     Apple's names, as ``faceanim rig`` makes them; ``shapes`` if already made) animated by
     ``curves`` (F, 52) in Live Link Face order at ``fps``, the head's ``rotations`` (F, 4) on a node
@@ -598,7 +608,8 @@ def write_arkit_gltf(path, face: Face, curves: np.ndarray, fps: float, rotations
     w = np.clip(np.asarray(curves, dtype=np.float64)[:, [column[n] for n in names]], 0.0, 1.0)
     extras = dict(extras, morph_sets={"arkit": names})
     return write_gltf(path, face.mesh, {n: made[n] for n in names}, times=np.arange(len(w)) / fps, weights=w,
-                      animation_name=name, rotations=rotations, pivot=head_pivot(face), extras=extras)
+                      animation_name=name, rotations=rotations, pivot=head_pivot(face), extras=extras,
+                      quantize=quantize)
 
 
 def write_take(path, take, face: Face | None = None, fps: float = 30.0, size: int = 512, progress=None) -> Path:

@@ -27,7 +27,9 @@ from faceanim.limits import DEFAULT_FPS
 
 def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
     """A FAP stream as .fap, .glb (+ its sound as .wav beside, named in the glb's extras), .mp4 or
-    .csv (Live Link Face: ARKit curves fitted to the stream on this face)."""
+    .csv (Live Link Face: ARKit curves fitted to the stream on this face). The .glb carries the
+    face's ARKit shapes driven by those fitted curves (weights 0..1) and the head's rotation, or
+    with ``--faps`` one target per FAP (signed weights)."""
     from faceanim.io.fapfile import write_fap
     from faceanim.player import gltf_stream, render_stream
 
@@ -45,7 +47,19 @@ def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
         from faceanim.io.gltf import sound_companion
 
         wav = sound_companion(out) if audio is not None else None
-        glb = gltf_stream(rig, stream, out, quantize=args.compact, extras={"audio": wav.name} if wav else None)
+        extras = {"audio": wav.name} if wav else None
+        if getattr(args, "faps", False):
+            glb = gltf_stream(rig, stream, out, quantize=args.compact, extras=extras)
+        else:
+            from faceanim.perform import head_quaternions, write_arkit_gltf
+            from faceanim.player import arkit_from_stream
+
+            weights, head, _ = arkit_from_stream(face, rig, stream)
+            if not (np.any(weights) or np.any(head)):
+                raise CommandError("the stream sets no FAP this face can show (as ARKit curves); give FAPs of the "
+                                   "face, brows, eyes, mouth or head")
+            glb = write_arkit_gltf(out, face, weights, stream.fps, head_quaternions(head, face.frame.rotation),
+                                   "animation", {"fps": stream.fps, **(extras or {})}, quantize=args.compact)
         if wav is None:
             return [glb]
         from faceanim.io.audio import read_audio, write_wav
@@ -297,6 +311,8 @@ def register(sub) -> None:
     add_face(fpl, positional=False)
     fpl.add_argument("--audio", metavar="SOUND", help="sound to put under the video (or beside a .glb)")
     _video_options(fpl, [".mp4", ".glb", ".csv"])
+    fpl.add_argument("--faps", action="store_true", help=".glb: one morph target per FAP (signed weights) instead "
+                                                         "of the face's ARKit shapes with fitted curves")
     fpl.set_defaults(func=_cmd_fap_play)
 
     fw = fsub.add_parser("write", help="write a .fap file from an expression, FAP values or text")
@@ -315,6 +331,8 @@ def register(sub) -> None:
     di.add_argument("script", metavar="SCRIPT")
     add_face(di, positional=False, default_help="the script's 'face', else the embedded default face")
     _video_options(di, [".mp4", ".glb", ".fap", ".csv"])
+    di.add_argument("--faps", action="store_true", help=".glb: one morph target per FAP (signed weights) instead "
+                                                        "of the face's ARKit shapes with fitted curves")
     di.set_defaults(func=_cmd_direct)
 
 
