@@ -479,3 +479,137 @@ def test_viewer_stream_refuses_other_origins():
             assert m["w"] == [0.25] * 52 and m["c"] == 1000.0 and m["t"] == 0.5
     finally:
         sink.close()
+
+
+# -- live lip sync ----------------------------------------------------------------------------------
+SPEECH = DATA / "speech-librivox"
+needs_speech = pytest.mark.skipif(not (SPEECH / "clip-0870.wav").exists(), reason="needs ../shared/data/speech-librivox")
+VISEMES = {"closed": "P B M", "labiodental": "F V", "rounded": "UW OW AO W UH OY R ER", "open": "AA AE AH AW AY",
+           "spread": "IY IH EH EY Y", "dental": "TH DH", "post": "SH ZH CH JH"}
+
+
+def _stream_clip(path, chunk_s=0.02):
+    """A sound fed to LiveLipSync in 20 ms chunks (as AudioFeed does, without the clock): per
+    chunk, the stream's time, the mouth's ARKit curves then and the phone being heard."""
+    from faceanim.drivers.speech.phonemes import SAMPLE_RATE
+    from faceanim.drivers.speech.stream import LiveLipSync
+    from faceanim.live.audio import APPLE, read_sound
+
+    x = read_sound(path)
+    ls = LiveLipSync(APPLE)
+    n = int(chunk_s * SAMPLE_RATE)
+    times, curves, heard = [], [], []
+    for k in range(0, len(x), n):
+        ls.feed(x[k:k + n])
+        times.append(ls.stream.time)
+        curves.append(ls.curves())
+        heard.append(ls.current_phone().rstrip("012"))
+    return np.array(times), np.array(curves), heard
+
+
+@needs_speech
+def test_live_lip_sync_against_the_offline_alignment():
+    """The oracle: each clip aligned offline with its transcript (pocketsphinx's forced alignment).
+    Streamed: a viseme's class shows up within 150 ms of the aligned phone's start (median), and
+    most p, b, m shut the lips (mouthClose reaches jawOpen) within 150 ms of the phone's end."""
+    from faceanim.drivers.speech.phonemes import align
+
+    cls = {p: k for k, v in VISEMES.items() for p in v.split()}
+    j, c = ARKIT_NAMES.index("JawOpen"), ARKIT_NAMES.index("MouthClose")
+    latencies, shut, closures = [], 0, 0
+    for wav in sorted(SPEECH.glob("clip-*.wav")):
+        times, curves, heard = _stream_clip(wav)
+        ref = align(wav, wav.with_suffix(".txt").read_text())
+        prev = None
+        for p in ref:
+            k = cls.get(p.phone.rstrip("012"))
+            if k is not None and k != prev:
+                sel = np.flatnonzero((times >= p.start - 0.02) & (times <= p.end + 0.3))
+                hit = [times[i] for i in sel if cls.get(heard[i]) == k]
+                if hit:
+                    latencies.append(hit[0] - p.start)
+            prev = k
+            if p.phone in ("P", "B", "M"):
+                closures += 1
+                sel = (times >= p.start - 0.03) & (times <= p.end + 0.15)
+                shut += bool(sel.any() and (curves[sel, j] - curves[sel, c]).min() < 0.03)
+    assert len(latencies) > 100 and np.median(latencies) <= 0.15, np.median(latencies)
+    assert closures > 20 and shut / closures >= 0.7, (shut, closures)
+
+
+@needs_speech
+def test_live_lip_sync_is_deterministic_and_restarts_at_pauses():
+    from faceanim.drivers.speech.phonemes import SAMPLE_RATE
+    from faceanim.drivers.speech.stream import MIN_UTTERANCE, PAUSE, LiveLipSync
+    from faceanim.live.audio import APPLE, read_sound
+
+    a, b = (read_sound(SPEECH / f"clip-{n}.wav") for n in ("0870", "0880"))
+    x = np.r_[a, np.zeros(int(2 * PAUSE * SAMPLE_RATE), np.float32), b]
+    runs = []
+    for _ in range(2):
+        ls = LiveLipSync(APPLE)
+        restarts, out = 0, []
+        for k in range(0, len(x), 320):
+            before = ls.stream.offset
+            ls.feed(x[k:k + 320])
+            restarts += ls.stream.offset != before
+            out.append(ls.curves())
+        runs.append(np.array(out))
+    assert np.array_equal(runs[0], runs[1])  # same sound, same curves
+    assert restarts >= 1 and len(a) / SAMPLE_RATE > MIN_UTTERANCE
+    second = [p for p in ls.stream.phones if p.phone != "SIL"]
+    assert second and second[-1].end > len(a) / SAMPLE_RATE + PAUSE  # the second clip heard after the restart
+    jaw = runs[0][:, APPLE.index("jawOpen")]
+    assert jaw[len(a) // 320 + 10:].max() > 0.2
+
+
+def test_idle_face_blinks_and_sways():
+    from faceanim.live.audio import BLINK_EVERY, HEAD_SWAY, IdleFace
+
+    idle = IdleFace()
+    t = np.arange(0, 60, 1 / 30)
+    blink, head = zip(*(idle.at(x) for x in t))
+    blink, head = np.array(blink), np.array(head)
+    starts = t[1:][(blink[1:] > 0) & (blink[:-1] == 0)]
+    gaps = np.diff(starts)
+    assert blink.max() == 1.0 and len(starts) >= 60 / BLINK_EVERY[1]
+    assert gaps.min() >= BLINK_EVERY[0] - 0.05 and gaps.max() <= BLINK_EVERY[1] + 0.05
+    assert np.all(np.abs(np.degrees(head)) <= np.array([a for _, a in HEAD_SWAY]) + 1e-9)
+    assert np.array_equal(blink, np.array([IdleFace().at(x)[0] for x in t]))  # the same every run
+
+
+def test_merge_mouth():
+    from faceanim.live.audio import CLOSE, MOUTH, merge_mouth
+    from faceanim.live.performer import LiveSample
+
+    video = np.full(52, 0.2)
+    sound = np.zeros(52)
+    sound[MOUTH] = 0.6
+    sound[CLOSE] = 0.9
+    for how, jaw, close, blink in (("audio", 0.6, 0.9, 0.2), ("video", 0.2, 0.2, 0.2), ("both", 0.4, 0.9, 0.2)):
+        s = LiveSample(0.0, True, np.zeros(0), video.copy(), np.zeros(3), np.zeros(6))
+        merge_mouth(s, sound, how)
+        assert s.arkit[ARKIT_NAMES.index("JawOpen")] == pytest.approx(jaw)
+        assert s.arkit[CLOSE] == pytest.approx(close)
+        assert s.arkit[ARKIT_NAMES.index("EyeBlinkLeft")] == pytest.approx(blink)  # the eyes stay the video's
+
+
+@needs_speech
+def test_live_command_with_sound_alone(tmp_path):
+    csv = tmp_path / "talk.csv"
+    r = _live("--audio", str(SPEECH / "clip-0870.wav"), "--to", f"csv:{csv}")
+    assert r.returncode == 0, r.stderr
+    take = read_arkit_csv(csv)
+    assert 6.5 * 30 <= take.n_samples <= 7.5 * 30  # the clip's 7 s at 30 ticks a second
+    jaw = take.weights[:, ARKIT_NAMES.index("JawOpen")]
+    assert jaw.max() > 0.3 and (jaw > 0.05).mean() > 0.3  # it talks
+    assert take.weights[:, ARKIT_NAMES.index("EyeBlinkLeft")].max() == pytest.approx(1.0)  # and blinks
+    silent = tmp_path / "silent.wav"
+    import soundfile
+
+    soundfile.write(str(silent), np.zeros(16000, np.float32), 16000)
+    for args, phrase in ((["--audio", str(silent)], "silent"), (["--audio", str(tmp_path / "none.wav")], "none.wav"),
+                         (["--audio", str(silent), "--mouth", "audio"], "--mouth")):
+        r = _live(*args, "--to", f"csv:{tmp_path / 'x.csv'}")
+        assert r.returncode == 2 and phrase in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "x.csv").exists()

@@ -15,8 +15,14 @@ def _cmd_live(args) -> None:
     from faceanim.live.sinks import CsvSink, parse_sinks
     from faceanim.live.sources import CameraSource, ClipSource
 
-    if (args.video is None) == (args.camera is None):
-        raise CommandError("give --video FILE or --camera N (one of them)")
+    if args.video is not None and args.camera is not None:
+        raise CommandError("give --video FILE or --camera N, not both")
+    if args.video is None and args.camera is None and args.audio is None:
+        raise CommandError("give a source: --camera N, --video FILE and/or --audio FILE")
+    picture = args.video is not None or args.camera is not None
+    if args.mouth is not None and not (picture and args.audio is not None):
+        raise CommandError("--mouth chooses between a video's mouth and a sound's; give --audio with --video or "
+                           "--camera")
     # every sink checked before the source is opened (a camera light should not flash for a typo)
     views = [t for t in args.to if t == "viewer" or t.startswith("viewer:")]
     if args.face is not None and not views:
@@ -36,11 +42,22 @@ def _cmd_live(args) -> None:
     files = [s.path for s in sinks if isinstance(s, CsvSink)]
     if len({p.resolve() for p in files}) < len(files):
         raise CommandError("two --to csv: sinks name the same file; give each its own")
-    if args.video is not None and any(p.resolve() == Path(args.video).resolve() for p in files):
-        raise CommandError("a --to csv: file is the input video; give the take its own path")
+    inputs = [Path(p).resolve() for p in (args.video, args.audio) if p is not None]
+    if any(p.resolve() in inputs for p in files):
+        raise CommandError("a --to csv: file is an input; give the take its own path")
     check_outputs(*files)
-    source = ClipSource(args.video, seconds=args.seconds) if args.video is not None else \
-        CameraSource(args.camera, seconds=args.seconds)
+    sound = None
+    if not picture:
+        from faceanim.live.audio import AudioSource
+
+        source = AudioSource(args.audio, seconds=args.seconds)
+    else:
+        if args.audio is not None:
+            from faceanim.live.audio import AudioFeed, read_sound
+
+            sound = AudioFeed(read_sound(args.audio), args.seconds)
+        source = ClipSource(args.video, seconds=args.seconds) if args.video is not None else \
+            CameraSource(args.camera, seconds=args.seconds)
     for s in sinks:  # the rate now known
         s.fps = source.fps
     if views:
@@ -48,7 +65,8 @@ def _cmd_live(args) -> None:
 
         sinks.append(ViewerSink(views[0], args.face))  # its servers start here
     print(f"faceanim live: {source.name} ({source.fps:g} fps) -> {', '.join(s.label for s in sinks)}"
-          + ("" if args.video is not None else "; Ctrl-C stops"), file=sys.stderr, flush=True)
+          + (f" with the sound of {Path(args.audio).name} ({args.mouth or 'both'} mouth)" if sound else "")
+          + ("" if args.camera is None else "; Ctrl-C stops"), file=sys.stderr, flush=True)
     page = next((s.url for s in sinks if hasattr(s, "url")), None)
     if page and not args.no_browser:
         import threading
@@ -57,7 +75,8 @@ def _cmd_live(args) -> None:
         threading.Thread(target=webbrowser.open, args=(page,), daemon=True).start()
     previous = signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM stops as Ctrl-C does
     try:
-        report = run_live(source, sinks, notice=lambda text: print(f"faceanim live: {text}", file=sys.stderr))
+        report = run_live(source, sinks, notice=lambda text: print(f"faceanim live: {text}", file=sys.stderr),
+                          sound=sound, mouth=args.mouth or "both")
     finally:
         signal.signal(signal.SIGTERM, previous)
     if report.error:
@@ -78,6 +97,12 @@ def register(sub) -> None:
                                    "Frames the compute cannot keep up with are dropped, and counted.")
     p.add_argument("--video", metavar="FILE", help="a clip, played in real time; the run ends with it")
     p.add_argument("--camera", type=_arg_type("--camera", 0, 63, integer=True), metavar="N", help="camera N")
+    p.add_argument("--audio", metavar="FILE", help="a sound (WAV, FLAC, OGG, ...) played in real time: live lip sync "
+                                                   "(phones recognised as they come); alone it drives the whole face "
+                                                   "(with blinks and a little head motion), with a video its mouth")
+    p.add_argument("--mouth", choices=("audio", "video", "both"),
+                   help="with --audio and a video or camera: whose mouth the avatar has (default: both, averaged; "
+                        "the lips shut when either shuts them)")
     p.add_argument("--to", action="append", default=[], metavar="SINK", required=True,
                    help="where the curves go (repeatable): vmc://HOST:PORT, livelink://HOST:PORT, csv:PATH or "
                         "viewer[:PORT] (the faceanim view page, 8760 by default)")

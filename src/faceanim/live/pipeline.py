@@ -37,6 +37,7 @@ class LiveReport:
     interrupted: bool = False
     error: str | None = None
     samples: list = field(default_factory=list)
+    images: bool = True
 
     @property
     def fps(self) -> float:
@@ -46,42 +47,57 @@ class LiveReport:
         lat = np.array(self.latency) * 1000
         p50, p95 = (np.percentile(lat, [50, 95]) if len(lat) else (float("nan"),) * 2)
         share = 100.0 * self.dropped / max(self.captured, 1)
-        return (f"{self.processed} frames in {self.seconds:.1f} s ({self.fps:.1f} fps), face found in {self.tracked}, "
+        found = f"face found in {self.tracked}, " if self.images else ""
+        return (f"{self.processed} frames in {self.seconds:.1f} s ({self.fps:.1f} fps), {found}"
                 f"{self.dropped} dropped ({share:.1f}%), latency p50 {p50:.0f} ms, p95 {p95:.0f} ms")
 
 
 def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None = None,
-             keep_samples: bool = False, tracker=None, notice=None) -> LiveReport:
+             keep_samples: bool = False, tracker=None, notice=None, sound=None, mouth: str = "both") -> LiveReport:
     """Run until the source ends or Ctrl-C; see the module docstring. ``notice(text)`` is told once
-    when the face has been lost for longer than the performer holds it."""
+    when the face has been lost for longer than the performer holds it. ``sound``: an
+    :class:`~faceanim.live.audio.AudioFeed` played beside a video source, its mouth merged into each
+    frame's by ``mouth`` (:func:`~faceanim.live.audio.merge_mouth`). A source of sound alone
+    (frames without images) drives the mouth, with idle blinks and head sway."""
+    from faceanim.live.audio import IdleFace, merge_mouth, sound_sample
     from faceanim.perform import LOST_HOLD
 
     from faceanim.drivers.video.tracking import FaceTracker
     from faceanim.io.files import native_stderr_quiet
 
     performer = performer or LivePerformer()
-    report = LiveReport()
+    report = LiveReport(images=source.images)
+    idle = IdleFace()
     lost_since, said = None, False
-    with native_stderr_quiet():
-        tracker = tracker or FaceTracker()
-        tracker(np.zeros((64, 64, 3), dtype=np.uint8))  # MediaPipe's graph starts on its first frame
+    if tracker is None and source.images:
+        with native_stderr_quiet():
+            tracker = FaceTracker()
+            tracker(np.zeros((64, 64, 3), dtype=np.uint8))  # MediaPipe's graph starts on its first frame
     started = time.monotonic()
     try:
         source.start()
+        if sound is not None:
+            sound.start()
         while True:
             frame = source.slot.get()
             if frame is None:
                 break
-            with native_stderr_quiet():
-                landmarks = tracker(frame.image)
-            sample: LiveSample = performer.step(landmarks, frame.time)
+            if frame.image is None:  # a tick of a sound alone
+                sample = sound_sample(frame.mouth, frame.time, idle)
+            else:
+                with native_stderr_quiet():
+                    landmarks = tracker(frame.image)
+                sample: LiveSample = performer.step(landmarks, frame.time)
+                if sound is not None:
+                    merge_mouth(sample, sound.curves(), mouth)
             sample.capture = time.time() - (time.monotonic() - frame.capture)  # as the epoch, for a page
             for sink in sinks:
                 sink.send(sample)
             report.latency.append(time.monotonic() - frame.capture)
             report.processed += 1
             report.tracked += int(sample.tracked)
-            lost_since = None if sample.tracked else (frame.time if lost_since is None else lost_since)
+            lost_since = None if sample.tracked or frame.image is None else (
+                frame.time if lost_since is None else lost_since)
             if lost_since is not None and frame.time - lost_since > LOST_HOLD and not said and notice:
                 notice(f"no face in view for {LOST_HOLD:g} s: the avatar eases to rest until the face is back")
                 said = True
@@ -91,7 +107,10 @@ def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None 
         report.interrupted = True
     finally:
         source.stop()
-        tracker.close()
+        if sound is not None:
+            sound.stop()
+        if tracker is not None:
+            tracker.close()
         report.seconds = time.monotonic() - started
         report.captured, report.dropped = source.slot.captured, source.slot.dropped
         if source.slot.error is not None:

@@ -19,13 +19,15 @@ from faceanim.errors import FaceAnimError
 @dataclass
 class Frame:
     """``index`` (frames captured so far, from 0), ``capture`` (time.monotonic() when it was
-    captured), ``time`` (seconds of the source: the clip's time, or since the camera started) and
-    ``image`` (H, W, 3) RGB."""
+    captured), ``time`` (seconds of the source: the clip's time, or since the camera started),
+    ``image`` (H, W, 3) RGB (None for a tick of a sound alone) and ``mouth``: the (52,) ARKit
+    curves a sound gives at that moment (:mod:`faceanim.live.audio`), if any."""
 
     index: int
     capture: float
     time: float
-    image: np.ndarray
+    image: np.ndarray | None
+    mouth: np.ndarray | None = None
 
 
 class Latest:
@@ -66,10 +68,12 @@ class Latest:
 
 
 class Source:
-    """A thread feeding a :class:`Latest`; ``start()``, ``stop()``, ``fps`` and ``name``."""
+    """A thread feeding a :class:`Latest`; ``start()``, ``stop()``, ``fps``, ``name`` and ``images``
+    (whether its frames carry pictures to track)."""
 
     name = "source"
     fps = 30.0
+    images = True
 
     def __init__(self):
         self.slot = Latest()

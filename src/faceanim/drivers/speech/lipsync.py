@@ -87,10 +87,11 @@ def speech_targets(phones: list[Phone]) -> list[tuple[float, float, dict, str]]:
     return out
 
 
-def lipsync_curves(phones: list[Phone], names: list[str], fps: float = 25.0, frames: int | None = None) -> np.ndarray:
+def lipsync_curves(phones: list[Phone], names: list[str], fps: float = 25.0, frames: int | None = None,
+                   start: float = 0.0) -> np.ndarray:
     """(F, len(names)) weights of the ARKit shapes ``names`` (Apple's names) over time for timed
-    ``phones`` (the module docstring), sampled at ``fps`` from time 0; F covers the last phone and
-    the rest after it, or is ``frames``."""
+    ``phones`` (the module docstring), sampled at ``fps`` from time ``start``; F covers the last
+    phone and the rest after it, or is ``frames``."""
     targets = speech_targets(phones)
     if not targets:
         raise FaceAnimError("no speech was found to animate; check the audio and its transcript")
@@ -101,7 +102,7 @@ def lipsync_curves(phones: list[Phone], names: list[str], fps: float = 25.0, fra
     num = np.zeros((n, len(names)))
     den = np.zeros((n, 2))  # the lips', the jaw's
     closing = np.zeros(n)  # how shut the p, b, m hold the lips
-    t = np.arange(n) / fps
+    t = float(start) + np.arange(n) / fps
     for a, b, target, phone in targets:
         lo, hi = np.searchsorted(t, [a - REACH, b + REACH])
         if hi <= lo:

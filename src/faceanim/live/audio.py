@@ -1,0 +1,171 @@
+"""Live lip sync: a sound file played in real time drives the mouth, alone or with a video's face.
+
+- :class:`AudioFeed` plays a sound (any file :func:`~faceanim.io.audio.read_audio` reads) in real
+  time in its own thread, 20 ms at a time, into a
+  :class:`~faceanim.drivers.speech.stream.LiveLipSync`: the phones heard so far, the mouth now.
+- :class:`AudioSource` is a source of ticks (30 a second) for a run with no video: each tick
+  carries the mouth's ARKit curves at that moment; :class:`IdleFace` adds blinks and a little head
+  motion so the avatar does not stare (deterministic: the same sound gives the same curves).
+- :func:`merge_mouth` puts the sound's mouth into a video frame's curves (``--mouth``).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from faceanim.drivers.speech.phonemes import SAMPLE_RATE
+from faceanim.drivers.speech.stream import LiveLipSync
+from faceanim.errors import FaceAnimError
+from faceanim.io.arkit_csv import ARKIT_NAMES
+from faceanim.live.performer import LiveSample
+from faceanim.live.sources import Frame, Source
+
+APPLE = [n[0].lower() + n[1:] for n in ARKIT_NAMES]
+MOUTH = np.array([n.startswith(("Jaw", "Mouth")) for n in ARKIT_NAMES])  # the curves the sound drives
+CLOSE = ARKIT_NAMES.index("MouthClose")
+CHUNK = SAMPLE_RATE // 50  # 20 ms of audio per step
+TICK_FPS = 30.0
+BLINK_EVERY = (2.0, 6.0)  # seconds between blinks (uniform), as people blink at rest
+BLINK_SHAPE = ((0.0, 0.0), (0.06, 1.0), (0.1, 1.0), (0.2, 0.0))  # (seconds, closure): shut fast, open slower
+HEAD_SWAY = ((0.21, 2.0), (0.13, 1.5), (0.08, 0.8))  # (Hz, degrees) of yaw, pitch and roll
+
+
+def read_sound(path) -> np.ndarray:
+    """A sound file as 16 kHz float samples; refused when silent."""
+    from faceanim.drivers.speech.phonemes import SILENT_RMS
+    from faceanim.io.audio import read_audio, resample
+
+    x, rate = read_audio(path, "sound")
+    x = resample(x, rate, SAMPLE_RATE)
+    if not len(x) or float(np.sqrt(np.mean(np.square(x, dtype=np.float64)))) < SILENT_RMS:
+        raise FaceAnimError("the sound is silent; give a recording of someone speaking")
+    return x
+
+
+class AudioFeed:
+    """The sound played in real time into a lip sync (its own thread); :meth:`curves` is the mouth
+    now (the (52,) ARKit curves in Live Link order, 0 outside the mouth). ``seconds`` stops it early."""
+
+    def __init__(self, samples: np.ndarray, seconds: float | None = None):
+        self.samples = samples
+        self.lipsync = LiveLipSync(APPLE)
+        self.lock = threading.Lock()
+        self.started: float | None = None
+        self.seconds = seconds
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: Exception | None = None
+
+    @property
+    def duration(self) -> float:
+        return len(self.samples) / SAMPLE_RATE
+
+    def start(self) -> None:
+        self.started = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name="faceanim live sound", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            end = len(self.samples) if self.seconds is None else min(len(self.samples), int(self.seconds * SAMPLE_RATE))
+            for k in range(0, end, CHUNK):
+                wait = self.started + (k + CHUNK) / SAMPLE_RATE - time.monotonic()
+                if wait > 0 and self._stop.wait(wait):
+                    return
+                with self.lock:
+                    self.lipsync.feed(self.samples[k:min(k + CHUNK, end)])
+        except Exception as exc:  # noqa: BLE001 -- reported by the run, which goes on without sound
+            self.error = exc
+
+    def curves(self) -> np.ndarray:
+        with self.lock:
+            mouth = self.lipsync.curves()
+        out = np.zeros(len(ARKIT_NAMES))
+        out[MOUTH] = mouth[MOUTH]
+        return out
+
+    @property
+    def finished(self) -> bool:
+        return self._thread is not None and not self._thread.is_alive()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+
+
+class IdleFace:
+    """Blinks at 2-6 s intervals and a slow head sway, for a face driven by sound alone; the same
+    every run (a fixed seed)."""
+
+    def __init__(self, seed: int = 7):
+        rng = np.random.default_rng(seed)
+        self.blinks = np.cumsum(rng.uniform(*BLINK_EVERY, size=20000))
+        self.phase = rng.uniform(0, 2 * np.pi, size=3)
+
+    def at(self, t: float) -> tuple[float, np.ndarray]:
+        """(eyeBlink weight, head yaw/pitch/roll in radians) at ``t`` seconds."""
+        k = int(np.searchsorted(self.blinks, t, side="right")) - 1
+        since = t - self.blinks[k] if k >= 0 else np.inf
+        times, values = zip(*BLINK_SHAPE)
+        blink = float(np.interp(since, times, values, right=0.0))
+        head = np.array([np.radians(a) * np.sin(2 * np.pi * f * t + p) for (f, a), p in zip(HEAD_SWAY, self.phase)])
+        return blink, head
+
+
+class AudioSource(Source):
+    """Ticks at :data:`TICK_FPS` while the sound plays (no picture): each :class:`Frame` has no
+    image and the mouth's curves as ``mouth``; the run ends with the sound."""
+
+    images = False
+
+    def __init__(self, path, seconds: float | None = None):
+        from pathlib import Path
+
+        super().__init__()
+        self.feed = AudioFeed(read_sound(path), seconds)
+        self.fps = TICK_FPS
+        self.name = Path(path).name
+        self.length = min(self.feed.duration, seconds if seconds is not None else np.inf)
+
+    def _run(self) -> None:
+        self.feed.start()
+        i = 0
+        try:
+            while not self._stop.is_set():
+                due = self.feed.started + (i + 1) / self.fps
+                wait = due - time.monotonic()
+                if wait > 0 and self._stop.wait(wait):
+                    return
+                if i / self.fps >= self.length:
+                    return
+                self.slot.put(Frame(i, time.monotonic(), i / self.fps, None, self.feed.curves()))
+                i += 1
+        finally:
+            self.feed.stop()
+
+
+def sound_sample(mouth: np.ndarray, t: float, idle: IdleFace) -> LiveSample:
+    """A frame of a face driven by sound alone: the mouth, idle blinks and head sway."""
+    arkit = np.array(mouth, dtype=np.float64)
+    blink, head = idle.at(t)
+    arkit[ARKIT_NAMES.index("EyeBlinkLeft")] = arkit[ARKIT_NAMES.index("EyeBlinkRight")] = blink
+    return LiveSample(t, False, np.zeros(0), np.clip(arkit, 0.0, 1.0), head, np.zeros(6))
+
+
+def merge_mouth(sample: LiveSample, mouth: np.ndarray, how: str) -> None:
+    """Put the sound's ``mouth`` into a video frame's ARKit curves (in place): ``audio`` replaces the
+    video's mouth and jaw, ``both`` averages them (the lips shut when either shuts them), ``video``
+    leaves them."""
+    if how == "video":
+        return
+    a = sample.arkit.copy()
+    if how == "audio":
+        a[MOUTH] = mouth[MOUTH]
+    else:
+        a[MOUTH] = 0.5 * (a[MOUTH] + mouth[MOUTH])
+        a[CLOSE] = max(sample.arkit[CLOSE], mouth[CLOSE])
+    sample.arkit = np.clip(a, 0.0, 1.0)
