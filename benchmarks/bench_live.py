@@ -18,8 +18,18 @@ VMC sink whose receiver (python-osc's server) runs in this process:
 - cold: building the live performer (database, k-d trees, mouth maps) and MediaPipe's first frame;
   the performer's retained and peak memory.
 
+Sound (``speech-librivox/``, each clip fed in 20 ms chunks as ``AudioFeed`` does, without the
+clock): against the clip's offline forced alignment with its transcript (the reference), the
+streamed viseme onsets (the first chunk at which the phone being heard is of the aligned phone's
+viseme class; latency from the aligned start; found = share of the class changes seen at all) and
+the p/b/m closures (the lips shut, mouthClose within 0.03 of jawOpen, from 30 ms before the phone to
+150 ms after it); the baseline is the offline all-phone recognition of the whole clip
+(``recognise_phones`` + ``say``'s curves: what ``faceanim say --audio`` does without a
+transcript), measured the same way; and the streaming decoder's cost per 20 ms chunk.
+
 Goals (issue 21): >= 30 fps sustained on a 30 fps clip, latency p50 <= 50 ms, p95 <= 100 ms,
-drops <= 2%, jaw r >= 0.85 and within 0.03 of offline. Nothing is asserted here.
+drops <= 2%, jaw r >= 0.85 and within 0.03 of offline; sound: onset p50 <= 150 ms, closures
+recall >= 0.8. Nothing is asserted here.
 """
 
 from __future__ import annotations
@@ -41,6 +51,74 @@ from faceanim.live.sources import ClipSource
 from faceanim.perform import arkit_curves, default_database, perform
 
 CLIPS = ("d0", "d3", "d9", "d10", "d14", "d18")
+VISEMES = {"closed": "P B M", "labiodental": "F V", "rounded": "UW OW AO W UH OY R ER", "open": "AA AE AH AW AY",
+           "spread": "IY IH EH EY Y", "dental": "TH DH", "post": "SH ZH CH JH"}
+CLASS = {p: k for k, v in VISEMES.items() for p in v.split()}
+
+
+def sound_figures(times, curves, heard, ref):
+    """(onset latencies, class changes, closures shut, closures) of a stream against the reference."""
+    j, c = ARKIT_NAMES.index("JawOpen"), ARKIT_NAMES.index("MouthClose")
+    lat, changes, shut, closures, prev = [], 0, 0, 0, None
+    for p in ref:
+        k = CLASS.get(p.phone.rstrip("012"))
+        if k is not None and k != prev:
+            changes += 1
+            sel = np.flatnonzero((times >= p.start - 0.02) & (times <= p.end + 0.3))
+            hit = [times[i] for i in sel if heard[i] == k]
+            if hit:
+                lat.append(hit[0] - p.start)
+        prev = k
+        if p.phone in ("P", "B", "M"):
+            closures += 1
+            sel = (times >= p.start - 0.03) & (times <= p.end + 0.15)
+            shut += bool(sel.any() and (curves[sel, j] - curves[sel, c]).min() < 0.03)
+    return lat, changes, shut, closures
+
+
+def sound_table(folder) -> None:
+    from faceanim.drivers.speech.lipsync import lipsync_curves
+    from faceanim.drivers.speech.phonemes import SAMPLE_RATE, align, recognise_phones
+    from faceanim.drivers.speech.stream import LiveLipSync
+    from faceanim.live.audio import APPLE, read_sound
+
+    rows, total = [], {"live": [[], 0, 0, 0], "offline": [[], 0, 0, 0]}
+    for wav in sorted(folder.glob("clip-*.wav")):
+        x = read_sound(wav)
+        ref = align(wav, wav.with_suffix(".txt").read_text())
+        ls = LiveLipSync(APPLE)
+        times, curves, heard, cost = [], [], [], []
+        for k in range(0, len(x), 320):
+            t0 = time.perf_counter()
+            ls.feed(x[k:k + 320])
+            curves.append(ls.curves())
+            cost.append(time.perf_counter() - t0)
+            times.append(ls.stream.time)
+            heard.append(CLASS.get(ls.current_phone().rstrip("012")))
+        live = sound_figures(np.array(times), np.array(curves), heard, ref)
+        phones = recognise_phones(wav)
+        grid = np.arange(0, len(x) / SAMPLE_RATE, 0.02)
+        off_curves = lipsync_curves(phones, APPLE, fps=50.0, frames=len(grid))
+        off_heard = [CLASS.get(next((p.phone.rstrip("012") for p in phones if p.start <= t < p.end), "SIL"))
+                     for t in grid]
+        offline = sound_figures(grid, off_curves, off_heard, ref)
+        for key, f in (("live", live), ("offline", offline)):
+            acc = total[key]
+            acc[0] += f[0]
+            acc[1] += f[1]
+            acc[2] += f[2]
+            acc[3] += f[3]
+        rows.append([wav.stem, f"{len(x) / SAMPLE_RATE:.1f} s", f"{1000 * np.median(live[0]):.0f}",
+                     f"{1000 * np.percentile(live[0], 90):.0f}", f"{len(live[0])}/{live[1]}",
+                     f"{live[2]}/{live[3]}", f"{len(offline[0])}/{offline[1]}", f"{offline[2]}/{offline[3]}",
+                     fmt_time(float(np.mean(cost))), fmt_time(float(np.max(cost)))])
+    lat, changes, shut, closures = total["live"]
+    rows.append(["all", "", f"{1000 * np.median(lat):.0f}", f"{1000 * np.percentile(lat, 90):.0f}",
+                 f"{len(lat)}/{changes} ({len(lat) / changes:.0%})", f"{shut}/{closures} ({shut / closures:.0%})",
+                 f"{len(total['offline'][0])}/{total['offline'][1]}",
+                 f"{total['offline'][2]}/{total['offline'][3]} ({total['offline'][2] / total['offline'][3]:.0%})", "", ""])
+    table(rows, ["clip", "length", "onset p50 ms", "p90 ms", "onsets found", "closures shut",
+                 "offline onsets found", "offline closures shut", "decode / 20 ms chunk", "max"])
 
 
 def receiver():
@@ -63,7 +141,8 @@ def jaw_r(curves: np.ndarray, gap: np.ndarray) -> float:
 
 def main() -> None:
     args = arguments(__doc__, "the shared data folder (../shared/data)",
-                     extra=[("--clips", {"default": ",".join(CLIPS), "help": "clips to play, comma-separated"})])
+                     extra=[("--clips", {"default": ",".join(CLIPS), "help": "clips to play, comma-separated "
+                                                                             "(none: the sound table only)"})])
     blas_threads(args.blas_threads)
     header("faceanim live: clips played in real time to VMC on 127.0.0.1")
     folder = args.data / "talking-head-videos"
@@ -80,7 +159,7 @@ def main() -> None:
           f"MediaPipe's first frame {fmt_time(t_first)}\n")
 
     rows, compute_rows = [], []
-    for name in args.clips.split(","):
+    for name in [c for c in args.clips.split(",") if c]:
         clip = folder / f"{name}.mp4"
         info = video_info(clip)
         server, count = receiver()
@@ -117,11 +196,15 @@ def main() -> None:
         t_step = (time.perf_counter() - t0) / len(frames)
         compute_rows.append([name, fmt_time(t_track), fmt_time(t_step), fmt_time(t_perform),
                              f"{t_step / t_perform:.2f}x"])
-    table(rows, ["clip", "fps", "frames", "sustained fps", "dropped", "latency p50 ms", "p95 ms", "VMC applies",
-                 "jaw r live", "jaw r offline", "live - offline"])
-    print()
-    table(compute_rows, ["clip", "tracking / frame", "live step / frame", "offline perform / frame (baseline)",
+    if rows:
+        table(rows, ["clip", "fps", "frames", "sustained fps", "dropped", "latency p50 ms", "p95 ms", "VMC applies",
+                     "jaw r live", "jaw r offline", "live - offline"])
+        print()
+        table(compute_rows, ["clip", "tracking / frame", "live step / frame", "offline perform / frame (baseline)",
                          "live / offline"])
+    if (args.data / "speech-librivox").is_dir():
+        print()
+        sound_table(args.data / "speech-librivox")
 
 
 if __name__ == "__main__":
