@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 from _timing import arguments, blas_threads, fmt_bytes, fmt_time, header, table, traced
@@ -139,6 +140,48 @@ def jaw_r(curves: np.ndarray, gap: np.ndarray) -> float:
     return float(np.corrcoef((curves[:, j] - curves[:, c])[ok], gap[ok])[0, 1])
 
 
+def browser_table(clip) -> None:
+    """``faceanim live --to viewer`` on ``clip`` with the page open in headless Chromium (Debian's,
+    SwiftShader: WebGL on the CPU), both on this machine: from each frame's capture to its weights
+    set in the page, and the page's frames drawn per second while the stream runs."""
+    import shutil
+    import subprocess
+    import sys
+
+    chromium = shutil.which("chromium") or "/usr/bin/chromium"
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        print("(no browser table: the playwright package is not installed)")
+        return
+    if not Path(chromium).exists():
+        print("(no browser table: chromium is not installed)")
+        return
+    flags = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+             "--disable-component-update", "--disable-sync", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+    proc = subprocess.Popen([sys.executable, "-m", "faceanim", "live", "--video", str(clip), "--to", "viewer:0",
+                             "--no-browser"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    url = proc.stderr.readline().split("viewer ")[1].split()[0]
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=chromium, headless=True, args=flags)
+        page = browser.new_page(viewport={"width": 760, "height": 760})
+        page.goto(url)
+        page.wait_for_function("window.viewer && window.viewer.ready", timeout=120_000)
+        page.wait_for_function("faceanimLive.messages > 0", timeout=60_000)
+        r0, t0 = page.evaluate("viewer.renders"), time.perf_counter()
+        page.wait_for_function("faceanimLive.closed", timeout=120_000, polling=500)
+        r1, t1 = page.evaluate("viewer.renders"), time.perf_counter()
+        lat = np.array(page.evaluate("faceanimLive.latencies"))
+        got = page.evaluate("faceanimLive.messages")
+        browser.close()
+    out, _ = proc.communicate(timeout=60)
+    sent = int(out.split(" frames")[0].split()[-1]) if " frames" in out else 0
+    table([[clip.stem, str(sent), str(got), f"{np.percentile(lat, 50):.0f}", f"{np.percentile(lat, 95):.0f}",
+            f"{(r1 - r0) / (t1 - t0):.1f}"]],
+          ["clip", "frames sent", "messages in the page", "capture to weights set p50 ms", "p95 ms",
+           "page frames drawn / s (CPU WebGL)"])
+
+
 def main() -> None:
     args = arguments(__doc__, "the shared data folder (../shared/data)",
                      extra=[("--clips", {"default": ",".join(CLIPS), "help": "clips to play, comma-separated "
@@ -205,6 +248,8 @@ def main() -> None:
     if (args.data / "speech-librivox").is_dir():
         print()
         sound_table(args.data / "speech-librivox")
+    print()
+    browser_table(folder / "d10.mp4")
 
 
 if __name__ == "__main__":

@@ -376,11 +376,14 @@ def browser():
 
 
 def _watch(page, name: str, seconds: float) -> list[float]:
-    """The page's weight of morph target ``name`` sampled every 50 ms."""
+    """The page's weight of morph target ``name`` sampled every 50 ms, until the stream ends (the
+    clip is over) or for at most ``seconds``."""
     out = []
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         out.append(page.evaluate(f"viewer.weight({name!r})"))
+        if page.evaluate("faceanimLive.closed"):
+            break
         page.wait_for_timeout(50)
     return out
 
@@ -391,10 +394,10 @@ def test_viewer_page_moves_the_default_face_live(browser):
     try:
         page.wait_for_function("faceanimLive.messages > 20", timeout=60_000)
         assert page.evaluate("faceanimLive.matched") >= 50  # the default face's ARKit shapes, by name
-        jaw = _watch(page, "jawOpen", 3.0)
+        jaw = _watch(page, "jawOpen", 30.0)
         assert max(jaw) > 0.2 and len(set(jaw)) > 5  # d18 opens its jaw; the weight moves
         lat = page.evaluate("faceanimLive.latencies")
-        assert len(lat) > 20 and all(x > -50 for x in lat)  # capture times on the page's clock, in ms
+        assert len(lat) > 5 and all(x > -50 for x in lat)  # capture times on the page's clock, in ms (newest frames only)
     finally:
         page.close()
         proc.send_signal(signal.SIGINT)
@@ -411,7 +414,7 @@ def test_viewer_page_moves_a_whole_avatar_by_its_arkit_names(browser):
     try:
         page.wait_for_function("faceanimLive.messages > 20", timeout=60_000)
         assert page.evaluate("faceanimLive.matched") >= 50
-        jaw = _watch(page, "jawOpen", 3.0)
+        jaw = _watch(page, "jawOpen", 30.0)
         assert max(jaw) > 0.2
     finally:
         page.close()
@@ -433,7 +436,7 @@ def test_viewer_page_moves_a_vrm_and_three_vrm_keeps_the_weights(browser, tmp_pa
     try:
         page.wait_for_function("faceanimLive.messages > 20", timeout=60_000)
         assert page.evaluate("faceanimLive.matched") >= 50
-        jaw = _watch(page, "jawOpen", 3.0)
+        jaw = _watch(page, "jawOpen", 30.0)
         assert max(jaw) > 0.2  # the expression manager sets the morph from the jawOpen expression
         proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=60)

@@ -705,7 +705,7 @@ async function main() {
 
 // ------------------------------------------------------------------------------------ live
 // faceanim live --to viewer: ARKit curves over a WebSocket, applied by name as they arrive
-const live = { messages: 0, latencies: [], connected: false, closed: false };
+const live = { messages: 0, skipped: 0, latencies: [], connected: false, closed: false, pending: null, apply: null };
 window.faceanimLive = live;
 
 function nameKey(name) {
@@ -738,7 +738,15 @@ function startLive(spec) {
   ws.onopen = () => { live.connected = true; say(`live: ${live.matched} of ${spec.names.length} ARKit curves drive this avatar`); };
   ws.onclose = () => { live.closed = true; };
   ws.onmessage = (ev) => {
-    const m = JSON.parse(ev.data);
+    // only the newest frame is drawn: one that arrives while the page draws replaces the one before
+    if (live.pending) live.skipped += 1;
+    live.pending = ev.data;
+    live.messages += 1;
+    dirty = true;
+  };
+  live.apply = () => {
+    const m = JSON.parse(live.pending);
+    live.pending = null;
     for (let k = 0; k < targets.length; k += 1) if (targets[k]) setWeight(targets[k], m.w[k]);
     euler.set(m.h[1], m.h[0], m.h[2], 'YXZ');  // pitch about x, yaw about y, roll about z
     q.setFromEuler(euler);
@@ -748,11 +756,8 @@ function startLive(spec) {
       root.quaternion.copy(q);
       root.position.copy(pivot).sub(pivot.clone().applyQuaternion(q));
     }
-    const now = performance.timeOrigin + performance.now();
-    live.messages += 1;
-    live.latencies.push(now - m.c);
+    live.latencies.push(performance.timeOrigin + performance.now() - m.c);
     if (live.latencies.length > 5000) live.latencies.shift();
-    dirty = true;
   };
 }
 
@@ -767,6 +772,7 @@ function loop(ms) {
     if (viewer.renders % 6 === 0) syncSliders();
   }
   for (const f of viewer.onFrame) f(now);
+  if (live.pending) live.apply();
   if (vrm) { vrm.update(dt); reapplyDirect(); dirty = true; }
   if (dirty || playing || viewer.onFrame.length) {
     dirty = false;
