@@ -22,6 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from faceanim.errors import FaceAnimError, InputFileError
+from faceanim.face.face import Face
 from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
 from faceanim.io.livelink import PACKET_NAMES, decode_packet, encode_packet
 from faceanim.io.vmc import decode_frame, encode_frame, head_quaternion
@@ -616,3 +617,44 @@ def test_live_command_with_sound_alone(tmp_path):
         r = _live(*args, "--to", f"csv:{tmp_path / 'x.csv'}")
         assert r.returncode == 2 and phrase in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_live_refuses_an_avatar_without_arkit_names(tmp_path):
+    from faceanim.io.gltf import write_gltf
+
+    face = Face.default()
+    glb = tmp_path / "smile.glb"
+    write_gltf(glb, face.mesh, {"smile_a": np.zeros_like(face.mesh.vertices) + 1e-3})
+    r = _live("--video", str(tmp_path / "none.mp4"), "--to", "viewer:0", "--face", str(glb), "--no-browser")
+    assert r.returncode == 2 and "named by ARKit" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    r = _live("--video", str(tmp_path / "none.mp4"), "--to", f"csv:{tmp_path / 'x.csv'}", "--face", str(glb))
+    assert r.returncode == 2 and "--to viewer" in r.stderr
+
+
+def test_live_command_eases_a_lost_face_to_rest_and_says_so_once(tmp_path):
+    """A clip whose face is seen for 1.5 s (the default face rendered with its jaw open), then
+    gone for 2.5 s: one notice on stderr; the take holds the open jaw, then is at rest."""
+    from faceanim.perform import LOST_EASE, LOST_HOLD
+    from faceanim.render import OffscreenRenderer
+    from faceanim.render.video import write_video
+    from faceanim.rig.arkit import arkit_shapes
+
+    face = Face.default()
+    shapes, _ = arkit_shapes(face)
+    with OffscreenRenderer(face.mesh, size=(256, 256), **face.view(yaw=0.0, pitch=0.0)) as r:
+        rest = r.render(face.mesh.vertices)
+        open_jaw = r.render(face.mesh.vertices + 0.7 * shapes["jawOpen"])
+    blank = np.full_like(rest, 40)
+    clip = tmp_path / "lost.mp4"
+    write_video(clip, [rest] * 20 + [open_jaw] * 25 + [blank] * 75, fps=30)
+    csv = tmp_path / "take.csv"
+    r = _live("--video", str(clip), "--to", f"csv:{csv}")
+    assert r.returncode == 0, r.stderr
+    assert sum("no face in view" in line for line in r.stderr.splitlines()) == 1
+    take = read_arkit_csv(csv)
+    jaw = take.weights[:, ARKIT_NAMES.index("JawOpen")]
+    t = np.arange(take.n_samples) / 30.0
+    seen_until = 45 / 30.0
+    held = jaw[(t > seen_until + 0.05) & (t < seen_until + LOST_HOLD - 0.05)]
+    assert held.min() > 0.1  # held while the face is just lost
+    assert np.all(jaw[t > seen_until + LOST_HOLD + LOST_EASE + 0.1] < 1e-6)  # then at rest

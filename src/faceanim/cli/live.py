@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from faceanim.cli.common import CommandError, _arg_type, check_outputs
+from faceanim.errors import shown
 
 
 def _cmd_live(args) -> None:
@@ -28,9 +29,14 @@ def _cmd_live(args) -> None:
     if args.face is not None and not views:
         raise CommandError("--face is the avatar the viewer shows; give --to viewer too")
     if args.face is not None:
+        from faceanim.live.viewer import driven_curves
         from faceanim.viewer.server import check_model
 
-        check_model(args.face)
+        model = check_model(args.face)
+        if not driven_curves(model.doc):
+            raise CommandError(f"'{shown(model.path.name, 60)}' has no morph target or VRM expression named by ARKit (jawOpen, "
+                               "eyeBlinkLeft ... in any spelling) nor VRM blink/aa presets; rig it first with "
+                               "faceanim rig")
     if len(views) > 1:
         raise CommandError("give --to viewer once (one page serves any number of browsers)")
     if views:

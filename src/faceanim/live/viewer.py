@@ -58,6 +58,30 @@ def viewer_port(spec: str) -> int:
     return int(rest[1:]) if rest else DEFAULT_PORT
 
 
+VRM_PRESETS = {"eyeBlinkLeft": "blinkLeft", "eyeBlinkRight": "blinkRight", "jawOpen": "aa"}  # as the page maps them
+
+
+def driven_curves(doc: dict) -> list[str]:
+    """The ARKit curves (Apple's names) a model's page can drive: morph targets or VRM expressions
+    named by ARKit in any spelling, or a VRM's blink and aa presets (as ``viewer.js`` matches)."""
+    from faceanim.io.arkit_csv import name_key
+
+    names = []
+    for mesh in doc.get("meshes") or []:
+        for extras in (mesh.get("extras"), *((p or {}).get("extras") for p in mesh.get("primitives") or [])):
+            if isinstance(extras, dict) and isinstance(extras.get("targetNames"), list):
+                names += [n for n in extras["targetNames"] if isinstance(n, str)]
+    ext = doc.get("extensions") or {}
+    vrm1 = (ext.get("VRMC_vrm") or {}).get("expressions") or {}
+    for group in ("preset", "custom"):
+        if isinstance(vrm1.get(group), dict):
+            names += [n for n in vrm1[group] if isinstance(n, str)]
+    vrm0 = ((ext.get("VRM") or {}).get("blendShapeMaster") or {}).get("blendShapeGroups") or []
+    names += [g.get("presetName") or g.get("name") for g in vrm0 if isinstance(g, dict)]
+    keys = {name_key(n) for n in names if isinstance(n, str)}
+    return [a for a in apple_names() if name_key(a) in keys or name_key(VRM_PRESETS.get(a, a)) in keys]
+
+
 class ViewerSink(Sink):
     """The viewer and its live stream (see the module docstring); ``url`` is the page's address."""
 
