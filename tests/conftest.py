@@ -43,3 +43,21 @@ def face_landmarks(face):
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Debian's Chromium, headless, driven by Playwright (tests/test_viewer.py says with what flags
+    and when it is skipped)."""
+    from test_viewer import CHROMIUM, CHROMIUM_FLAGS, _browser_skip_reason
+
+    reason = _browser_skip_reason()
+    if reason:
+        pytest.skip(reason)
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS)
+        yield b
+        b.close()
+

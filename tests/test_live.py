@@ -49,6 +49,20 @@ def test_livelink_packet_matches_the_layout_built_by_hand():
     assert set(PACKET_NAMES[:52]) == set(ARKIT_NAMES)
 
 
+UNREAL_ENUM = """EyeBlinkLeft EyeLookDownLeft EyeLookInLeft EyeLookOutLeft EyeLookUpLeft EyeSquintLeft EyeWideLeft
+EyeBlinkRight EyeLookDownRight EyeLookInRight EyeLookOutRight EyeLookUpRight EyeSquintRight EyeWideRight JawForward
+JawLeft JawRight JawOpen MouthClose MouthFunnel MouthPucker MouthLeft MouthRight MouthSmileLeft MouthSmileRight
+MouthFrownLeft MouthFrownRight MouthDimpleLeft MouthDimpleRight MouthStretchLeft MouthStretchRight MouthRollLower
+MouthRollUpper MouthShrugLower MouthShrugUpper MouthPressLeft MouthPressRight MouthLowerDownLeft MouthLowerDownRight
+MouthUpperUpLeft MouthUpperUpRight BrowDownLeft BrowDownRight BrowInnerUp BrowOuterUpLeft BrowOuterUpRight CheekPuff
+CheekSquintLeft CheekSquintRight NoseSneerLeft NoseSneerRight TongueOut HeadYaw HeadPitch HeadRoll LeftEyeYaw
+LeftEyePitch LeftEyeRoll RightEyeYaw RightEyePitch RightEyeRoll""".split()  # Unreal's EARFaceBlendShape
+
+
+def test_livelink_packet_order_is_unreals_enum():
+    assert PACKET_NAMES == tuple(UNREAL_ENUM)
+
+
 def test_livelink_ntsc_rate_is_a_rational():
     assert decode_packet(encode_packet({}, 0, 29.97, "s", "d")).rate == (30000, 1001)
 
@@ -359,21 +373,6 @@ def _live_page(browser, args, seconds=30.0):
     page.wait_for_function("window.viewer && (window.viewer.ready || window.viewer.error)", timeout=120_000)
     assert page.evaluate("viewer.error") is None and not errors
     return p, page
-
-
-@pytest.fixture(scope="module")
-def browser():
-    from test_viewer import CHROMIUM, CHROMIUM_FLAGS, _browser_skip_reason
-
-    reason = _browser_skip_reason()
-    if reason:
-        pytest.skip(reason)
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS)
-        yield b
-        b.close()
 
 
 def _watch(page, name: str, seconds: float) -> list[float]:

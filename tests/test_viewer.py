@@ -340,19 +340,6 @@ def test_port_in_use_and_ctrl_c(model):
 
 
 # ---------------------------------------------------------------------------------------- browser
-@pytest.fixture(scope="module")
-def browser():
-    reason = _browser_skip_reason()
-    if reason:
-        pytest.skip(reason)
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS)
-        yield b
-        b.close()
-
-
 class Page:
     """A viewer process and a page on it, with the console's errors collected."""
 

@@ -20,23 +20,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from faceanim.errors import InputFileError
+from faceanim.io.arkit_csv import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
 
 VERSION = 6
 DEFAULT_PORT = 11111
-# Unreal's EARFaceBlendShape order: the 52 blendshapes, then the head's and the eyes' angles
-PACKET_NAMES = (
-    "EyeBlinkLeft", "EyeLookDownLeft", "EyeLookInLeft", "EyeLookOutLeft", "EyeLookUpLeft", "EyeSquintLeft",
-    "EyeWideLeft", "EyeBlinkRight", "EyeLookDownRight", "EyeLookInRight", "EyeLookOutRight", "EyeLookUpRight",
-    "EyeSquintRight", "EyeWideRight", "JawForward", "JawLeft", "JawRight", "JawOpen", "MouthClose",
-    "MouthFunnel", "MouthPucker", "MouthLeft", "MouthRight", "MouthSmileLeft", "MouthSmileRight",
-    "MouthFrownLeft", "MouthFrownRight", "MouthDimpleLeft", "MouthDimpleRight", "MouthStretchLeft",
-    "MouthStretchRight", "MouthRollLower", "MouthRollUpper", "MouthShrugLower", "MouthShrugUpper",
-    "MouthPressLeft", "MouthPressRight", "MouthLowerDownLeft", "MouthLowerDownRight", "MouthUpperUpLeft",
-    "MouthUpperUpRight", "BrowDownLeft", "BrowDownRight", "BrowInnerUp", "BrowOuterUpLeft", "BrowOuterUpRight",
-    "CheekPuff", "CheekSquintLeft", "CheekSquintRight", "NoseSneerLeft", "NoseSneerRight", "TongueOut",
-    "HeadYaw", "HeadPitch", "HeadRoll", "LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw",
-    "RightEyePitch", "RightEyeRoll",
-)
+
+
+def _unreal_order() -> tuple[str, ...]:
+    """Unreal's ``EARFaceBlendShape`` order: the app's CSV columns with the jaw's and the mouth's
+    left and right the other way round, then the head's and the eyes' angles."""
+    names = list(ARKIT_NAMES)
+    for a, b in (("JawLeft", "JawRight"), ("MouthLeft", "MouthRight")):
+        i, j = names.index(a), names.index(b)
+        names[i], names[j] = names[j], names[i]
+    return tuple(names) + HEAD_NAMES + EYE_NAMES
+
+
+PACKET_NAMES = _unreal_order()  # the 52 blendshapes, then the head's and the eyes' angles
 MAX_TEXT = 256  # bytes of a device id or subject name (the app's are a UUID and a short name)
 
 
