@@ -15,9 +15,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from faceanim.live.performer import LivePerformer, LiveSample
+from faceanim.live.performer import LivePerformer
 from faceanim.live.sinks import Sink
 from faceanim.live.sources import Source
+
+QUIET_FRAMES = 30  # the first frames are tracked with the native stderr silenced (MediaPipe's start-up log)
 
 
 @dataclass
@@ -59,13 +61,13 @@ def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None 
     :class:`~faceanim.live.audio.AudioFeed` played beside a video source, its mouth merged into each
     frame's by ``mouth`` (:func:`~faceanim.live.audio.merge_mouth`). A source of sound alone
     (frames without images) drives the mouth, with idle blinks and head sway."""
+    from faceanim.drivers.video.tracking import FaceTracker
+    from faceanim.io.files import native_stderr_quiet
     from faceanim.live.audio import IdleFace, merge_mouth, sound_sample
     from faceanim.perform import LOST_HOLD
 
-    from faceanim.drivers.video.tracking import FaceTracker
-    from faceanim.io.files import native_stderr_quiet
-
-    performer = performer or LivePerformer()
+    if source.images:
+        performer = performer or LivePerformer()
     report = LiveReport(images=source.images)
     idle = IdleFace()
     lost_since, said = None, False
@@ -73,6 +75,13 @@ def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None 
         with native_stderr_quiet():
             tracker = FaceTracker()
             tracker(np.zeros((64, 64, 3), dtype=np.uint8))  # MediaPipe's graph starts on its first frame
+
+    def track(image):
+        if report.processed >= QUIET_FRAMES:
+            return tracker(image)
+        with native_stderr_quiet():  # MediaPipe logs as its face model starts on the first faces
+            return tracker(image)
+
     started = time.monotonic()
     try:
         source.start()
@@ -85,9 +94,7 @@ def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None 
             if frame.image is None:  # a tick of a sound alone
                 sample = sound_sample(frame.mouth, frame.time, idle)
             else:
-                with native_stderr_quiet():
-                    landmarks = tracker(frame.image)
-                sample: LiveSample = performer.step(landmarks, frame.time)
+                sample = performer.step(track(frame.image), frame.time)
                 if sound is not None:
                     merge_mouth(sample, sound.curves(), mouth)
             sample.capture = time.time() - (time.monotonic() - frame.capture)  # as the epoch, for a page
