@@ -375,6 +375,16 @@ def _live_page(browser, args, seconds=30.0):
     return p, page
 
 
+def _finish(proc) -> int:
+    """Wait for a live run to end with its clip (Ctrl-C if it has not within 30 s): its exit code."""
+    try:
+        proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=60)
+    return proc.returncode
+
+
 def _watch(page, name: str, seconds: float) -> list[float]:
     """The page's weight of morph target ``name`` sampled every 50 ms, until the stream ends (the
     clip is over) or for at most ``seconds``."""
@@ -400,9 +410,8 @@ def test_viewer_page_moves_the_default_face_live(browser):
         assert len(lat) > 5 and all(x > -50 for x in lat)  # capture times on the page's clock, in ms (newest frames only)
     finally:
         page.close()
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
+        code = _finish(proc)
+    assert code == 0
 
 
 @needs_clips
@@ -418,9 +427,8 @@ def test_viewer_page_moves_a_whole_avatar_by_its_arkit_names(browser):
         assert max(jaw) > 0.2
     finally:
         page.close()
-        proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=60)
-    assert proc.returncode == 0
+        code = _finish(proc)
+    assert code == 0
 
 
 @needs_clips
@@ -438,8 +446,7 @@ def test_viewer_page_moves_a_vrm_and_three_vrm_keeps_the_weights(browser, tmp_pa
         assert page.evaluate("faceanimLive.matched") >= 50
         jaw = _watch(page, "jawOpen", 30.0)
         assert max(jaw) > 0.2  # the expression manager sets the morph from the jawOpen expression
-        proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=60)
+        assert _finish(proc) == 0
         page.wait_for_function("faceanimLive.closed", timeout=30_000)
         # a morph weight set directly (a slider) is set again after each of three-vrm's updates
         page.evaluate("viewer.setWeight('jawOpen', 1.0)")
@@ -448,9 +455,8 @@ def test_viewer_page_moves_a_vrm_and_three_vrm_keeps_the_weights(browser, tmp_pa
         assert page.evaluate("viewer.weight('jawOpen')") == 1.0
     finally:
         page.close()
-        proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=60)
-    assert proc.returncode == 0
+        code = _finish(proc)
+    assert code == 0
 
 
 def test_viewer_stream_refuses_other_origins():
@@ -657,3 +663,19 @@ def test_live_command_eases_a_lost_face_to_rest_and_says_so_once(tmp_path):
     held = jaw[(t > seen_until + 0.05) & (t < seen_until + LOST_HOLD - 0.05)]
     assert held.min() > 0.1  # held while the face is just lost
     assert np.all(jaw[t > seen_until + LOST_HOLD + LOST_EASE + 0.1] < 1e-6)  # then at rest
+
+
+def test_live_viewer_port_in_use(tmp_path):
+    from faceanim.viewer.server import ViewerError
+
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen(1)
+    port = busy.getsockname()[1]
+    try:
+        from faceanim.live.viewer import ViewerSink
+
+        with pytest.raises(ViewerError, match=f"port {port} .* in use.*--to viewer:P"):
+            ViewerSink(f"viewer:{port}")
+    finally:
+        busy.close()

@@ -91,25 +91,29 @@ class ViewerSink(Sink):
         from faceanim.viewer.server import HOST, Viewer, ViewerServer, check_model, check_vendor
 
         port = viewer_port(spec)
+        # the port first (a port in use is told before the avatar is made), the page's files next
+        self.http = ViewerServer(None, port, option="--to viewer:")
         self._tmp = None
-        if face is None:
-            self._tmp = tempfile.TemporaryDirectory(prefix="faceanim-live-")
-            model = check_model(default_avatar(Path(self._tmp.name)))
-        else:
-            model = check_model(face)
-        check_vendor(vrm=model.kind == "vrm")
-        self.clients: dict = {}
-        self.lock = threading.Lock()
-        self.ws = serve(self._client, HOST, 0, origins=None, max_size=MAX_MESSAGE, compression=None,
-                        process_request=self._check_origin)
-        ws_port = self.ws.socket.getsockname()[1]
-        viewer = Viewer(model)
-        viewer.live = {"url": f"ws://{HOST}:{ws_port}/", "names": apple_names()}
         try:
-            self.http = ViewerServer(viewer, port)
-        except FaceAnimError:
-            self.ws.shutdown()
+            check_vendor(vrm=face is not None and Path(face).suffix.lower() == ".vrm")
+            if face is None:
+                self._tmp = tempfile.TemporaryDirectory(prefix="faceanim-live-")
+                model = check_model(default_avatar(Path(self._tmp.name)))
+            else:
+                model = check_model(face)
+            check_vendor(vrm=model.kind == "vrm")
+            self.clients: dict = {}
+            self.lock = threading.Lock()
+            self.ws = serve(self._client, HOST, 0, origins=None, max_size=MAX_MESSAGE, compression=None,
+                            process_request=self._check_origin)
+        except BaseException:
+            self.http.server_close()
+            if self._tmp is not None:
+                self._tmp.cleanup()
             raise
+        ws_port = self.ws.socket.getsockname()[1]
+        self.http.viewer = Viewer(model)
+        self.http.viewer.live = {"url": f"ws://{HOST}:{ws_port}/", "names": apple_names()}
         self.url = self.http.url
         self.label = f"viewer {self.url}"
         self._origins = {f"http://{HOST}:{self.http.server_address[1]}", f"http://localhost:{self.http.server_address[1]}"}

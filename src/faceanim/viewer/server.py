@@ -351,8 +351,11 @@ class ViewerServer(ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = True  # SO_REUSEADDR: a restart may take a port in TIME_WAIT; a listening port is still refused
 
-    def __init__(self, viewer: Viewer, port: int = DEFAULT_PORT):
+    def __init__(self, viewer: Viewer, port: int = DEFAULT_PORT, option: str = "--port"):
+        """``option``: how the user gives the port, named in the messages (``--port``, or
+        ``--to viewer:`` for faceanim live)."""
         self.viewer = viewer
+        sep = "" if option.endswith(":") else " "
         try:
             super().__init__((HOST, port), _Handler)
         except OSError as exc:
@@ -360,12 +363,12 @@ class ViewerServer(ThreadingHTTPServer):
 
             if exc.errno == errno.EADDRINUSE:
                 raise ViewerError(f"port {port} on {HOST} is in use (another faceanim view or server?); give "
-                                  "another with --port P, or --port 0 for any free port") from None
+                                  f"another with {option}{sep}P, or {option}{sep}0 for any free port") from None
             if exc.errno == errno.EACCES:
                 raise ViewerError(f"port {port} needs special rights here; give a port from 1024 to 65535 "
-                                  "with --port P") from None
-            raise ViewerError(f"cannot listen on {HOST}:{port} ({exc.strerror or exc}); give another --port") \
-                from None
+                                  f"with {option}{sep}P") from None
+            raise ViewerError(f"cannot listen on {HOST}:{port} ({exc.strerror or exc}); give another port with "
+                              f"{option}{sep}P") from None
 
     def handle_error(self, request, client_address) -> None:
         """A browser that goes away mid-answer is no error; anything else: one line, no traceback."""
