@@ -138,3 +138,20 @@ def test_a_device_is_not_a_take(tmp_path):
         read_arkit_csv("/dev/null")
     with pytest.raises(InputFileError, match="a folder"):
         read_arkit_csv(tmp_path)
+
+
+def test_written_take_has_the_apps_layout(tmp_path):
+    """As Live Link Face writes a take: LF line ends, the same header (names and order) as the shared
+    recording, a timecode counting the app's 60 frames a second, BlendShapeCount 61."""
+    from faceanim.io.arkit_csv import write_arkit_csv
+
+    rec = Path(__file__).resolve().parents[2] / "shared" / "data" / "arkit-curves" / "alex_rom_3.csv"
+    out = tmp_path / "t.csv"
+    write_arkit_csv(out, np.zeros((3, 52)), 30.0)
+    data = out.read_bytes()
+    assert b"\r" not in data and data.endswith(b"\n")
+    lines = data.decode().splitlines()
+    assert [r.split(",")[0] for r in lines[1:]] == ["00:00:00:00.000", "00:00:00:02.000", "00:00:00:04.000"]
+    assert {r.split(",")[1] for r in lines[1:]} == {"61"}
+    if rec.exists():
+        assert lines[0] == rec.read_text().splitlines()[0]

@@ -231,7 +231,7 @@ def write_arkit_csv(path: str | os.PathLike, weights: np.ndarray, fps: float, he
     # would print as -0.000000 on one machine and 0.000000 on another
     w, h, e = np.round(w, 6) + 0.0, np.round(h, 6) + 0.0, np.round(e, 6) + 0.0
     with atomic_output(path, "ARKit take") as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
-        out = csv.writer(fh)
+        out = csv.writer(fh, lineterminator="\n")  # LF, as the app writes its takes
         out.writerow(["Timecode", "BlendShapeCount", *ARKIT_NAMES, *HEAD_NAMES, *EYE_NAMES])
         for i in range(len(w)):
             t = i / fps
