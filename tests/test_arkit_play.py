@@ -3,6 +3,7 @@ the generic head with Apple's names; the take's curves and head angles animated.
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -250,3 +251,24 @@ def test_arkit_play_onto_a_whole_vroid_avatar(tmp_path):
         report = json.loads(subprocess.run(["node", str(validator), str(out)], capture_output=True, text=True,
                                            check=True).stdout)
         assert report["numErrors"] == 0
+
+
+@pytest.mark.skipif(not VROID.exists(), reason="needs ../shared/data/avatars/vroid-sample.glb")
+@pytest.mark.skipif(not shutil.which("espeak-ng"), reason="espeak-ng is not installed (scripts/setup.sh installs it)")
+def test_say_onto_an_avatars_own_targets(tmp_path):
+    """say --face avatar.glb with ARKit-named targets: the avatar with the speech as one more
+    animation on its own jawOpen (p, b, m shut: mouthClose reaches jawOpen), the sound beside it."""
+    from faceanim.io.gltf import glb_json
+    from faceanim.io.scene import read_scene
+
+    out = tmp_path / "say.glb"
+    assert run(["say", "Peter Piper picked a peck", "--face", VROID, "-o", out]) == 0
+    doc = glb_json(out)
+    anim = doc["animations"][-1]
+    mi = doc["nodes"][anim["channels"][0]["target"]["node"]]["mesh"]
+    names = doc["meshes"][mi]["extras"]["targetNames"]
+    w = accessor(pygltflib.GLTF2().load_binary(str(out)), anim["samplers"][0]["output"]).reshape(-1, len(names))
+    jaw, close = w[:, names.index("jawOpen")], w[:, names.index("mouthClose")]
+    assert jaw.max() > 0.2 and np.any((close > 0.1) & (np.abs(close - jaw) < 0.02))
+    assert doc["scenes"][doc.get("scene", 0)]["extras"]["audio"] == "say.wav" and (tmp_path / "say.wav").is_file()
+    assert len(read_scene(out).meshes()) == len(read_scene(VROID).meshes())

@@ -250,11 +250,13 @@ def arkit_targets(scene) -> dict[int, dict[int, int]]:
     return out
 
 
-def play_on_avatar(source, output, curves: np.ndarray, fps: float, name: str = "take") -> AvatarPlay:
+def play_on_avatar(source, output, curves: np.ndarray, fps: float, name: str = "take",
+                   extras: dict | None = None) -> AvatarPlay:
     """The avatar file ``source`` written to ``output`` as it was (meshes, skins, materials, its own
     targets and animations, edits made in Blender), with one more animation, ``name``: ``curves``
     (F, 52, Live Link Face order, clamped to 0..1) played onto its own morph targets by their ARKit
-    names, at ``fps``; its other targets stay at 0. Refused when no target carries an ARKit name."""
+    names, at ``fps``; its other targets stay at 0; ``extras`` are merged into the scene's (a sound
+    beside it: ``{"audio": "x.wav"}``). Refused when no target carries an ARKit name."""
     from faceanim.io.arkit_csv import ARKIT_NAMES
     from faceanim.io.scene import read_scene, write_scene
 
@@ -272,6 +274,11 @@ def play_on_avatar(source, output, curves: np.ndarray, fps: float, name: str = "
             rows[:, t] = w[:, k]
         weights[mi] = rows
         driven[info[mi].name] = sorted({ARKIT_NAMES[k] for k in found.values()}, key=ARKIT_NAMES.index)
+    if extras:
+        doc = scene.document
+        if doc.scenes:
+            target = doc.scenes[doc.scene or 0]
+            target.extras = {**(target.extras if isinstance(target.extras, dict) else {}), **extras}
     write_scene(scene, output, {}, animation={"name": name, "times": np.arange(len(w)) / float(fps),
                                               "weights": weights})
     return AvatarPlay(driven, len(w))

@@ -227,3 +227,31 @@ def quiet_native_logs(verbose: bool) -> None:
         os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     else:
         os.environ["FACEANIM_VERBOSE"] = "1"
+
+
+def own_targets(args, suffix: str) -> bool:
+    """Whether the curves go onto the --face avatar's own morph targets by their ARKit names: the face
+    is a .glb/.vrm that has such targets and the output is .glb/.vrm. A .vrm output needs one."""
+    face = Path(args.face) if args.face else None
+    own = False
+    if face is not None and face.suffix.lower() in (".glb", ".vrm") and suffix in (".glb", ".vrm"):
+        from faceanim.avatar import arkit_targets
+        from faceanim.io.scene import read_scene
+
+        scene = read_scene(face)
+        own = bool(arkit_targets(scene))
+        vrm = bool({"VRMC_vrm", "VRM"} & set(scene.document.extensions or {}))
+    if suffix == ".vrm" and not (own and vrm):
+        raise CommandError("a .vrm output plays onto a --face VRM avatar whose morph targets carry ARKit's names; "
+                           "write .glb, or rig the avatar first with faceanim rig")
+    return own
+
+
+def play_own(args, out: Path, curves, fps: float, name: str, extras: dict | None = None) -> Path:
+    """Play ``curves`` (F, 52, Live Link order) onto the --face avatar's own targets into ``out``."""
+    from faceanim.avatar import play_on_avatar
+
+    played = play_on_avatar(args.face, out, curves, fps, name, extras)
+    for mesh, names in played.driven.items():
+        print(f"{len(names)} ARKit curves onto the avatar's own targets of mesh '{shown(mesh, 60)}'")
+    return out

@@ -20,6 +20,8 @@ from faceanim.cli.common import (
     check_outputs,
     load_face,
     note_written,
+    own_targets,
+    play_own,
     progress,
 )
 from faceanim.limits import DEFAULT_FPS
@@ -156,6 +158,30 @@ def _say_arkit(args, face, phones, wav) -> tuple[list[Path], int, float]:
                 len(curves), args.fps)
 
 
+def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
+    """``say`` onto the --face avatar's own ARKit-named targets: the same avatar with the speech as one
+    more animation, the sound beside it (named in the scene's extras)."""
+    from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
+    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.io.audio import read_audio, write_wav
+    from faceanim.io.gltf import sound_companion
+
+    names = [n[0].lower() + n[1:] for n in ARKIT_NAMES]
+    curves = lipsync_curves(phones, names, args.fps)
+    if args.expression:
+        curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),
+                         0.0, 1.0)
+    out = Path(args.output)
+    companion = sound_companion(out)
+    play_own(args, out, curves, args.fps, out.stem, {"audio": companion.name, "fps": args.fps})
+    try:
+        samples, rate = read_audio(wav)
+        return [out, write_wav(companion, samples, rate)], len(curves), args.fps
+    except BaseException:
+        out.unlink(missing_ok=True)  # no half of the pair left behind
+        raise
+
+
 def _cmd_say(args) -> None:
     if (args.text is None) == (args.audio is None):
         raise CommandError("give the text to say, or --audio clip.wav (with --transcript clip.txt if you have it)")
@@ -175,11 +201,12 @@ def _cmd_say(args) -> None:
         from faceanim.io.audio import read_audio
 
         read_audio(args.audio, "recorded speech")
-    face = load_face(args)
+    own = own_targets(args, Path(args.output).suffix.lower())
+    face = None if own else load_face(args)
     with tempfile.TemporaryDirectory() as tmp:
         phones, wav = _say_phones(args, voice, Path(tmp))
         fap = Path(args.output).suffix.lower() == ".fap"
-        written, n_frames, fps = (_say_fap if fap else _say_arkit)(args, face, phones, wav)
+        written, n_frames, fps = (_say_own if own else _say_fap if fap else _say_arkit)(args, face, phones, wav)
     note_written(written)
     print(f"wrote {', '.join(map(str, written))} ({n_frames} frames, {len(phones)} phones, {n_frames / fps:.1f} s)")
 

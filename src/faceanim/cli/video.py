@@ -9,6 +9,8 @@ import numpy as np
 
 from faceanim.cli.common import (
     CommandError,
+    own_targets,
+    play_own,
     _arg_type,
     add_face,
     add_output,
@@ -145,7 +147,7 @@ def _cmd_perform(args) -> None:
         w, h = info.size
         check_video(info.frames_expected, max(2, int(round(w * args.size / h / 2)) * 2) + args.size, args.size)
     db = load_database(args.db) if args.db else default_database()
-    own = not args.bases and _own_targets(args, suffix)
+    own = not args.bases and own_targets(args, suffix)
     face = load_face(args) if suffix != ".csv" and not own else None
     with progress(info.frames_expected, "tracking", args.quiet) as bar:
         tr = track_frames(video_frames(info), info.fps, args.neutral_frame, bar)
@@ -166,38 +168,11 @@ def _cmd_perform(args) -> None:
     if own:
         from faceanim.perform import arkit_curves
 
-        _play_own(args, out, arkit_curves(perf, db), perf.fps, "performance")
+        report([play_own(args, out, arkit_curves(perf, db), perf.fps, "performance")])
         return
     with progress(perf.n_frames if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
         written = write_performance(out, perf, db, face, args.video, args.size, bar, bases=args.bases)
     report([written])
-
-
-def _own_targets(args, suffix: str) -> bool:
-    """Whether the curves go onto the --face avatar's own morph targets by their ARKit names: the face
-    is a .glb/.vrm that has such targets and the output is .glb/.vrm. A .vrm output needs one."""
-    face = Path(args.face) if args.face else None
-    own = False
-    if face is not None and face.suffix.lower() in (".glb", ".vrm") and suffix in (".glb", ".vrm"):
-        from faceanim.avatar import arkit_targets
-        from faceanim.io.scene import read_scene
-
-        scene = read_scene(face)
-        own = bool(arkit_targets(scene))
-        vrm = bool({"VRMC_vrm", "VRM"} & set(scene.document.extensions or {}))
-    if suffix == ".vrm" and not (own and vrm):
-        raise CommandError("a .vrm output plays onto a --face VRM avatar whose morph targets carry ARKit's names; "
-                           "write .glb, or rig the avatar first with faceanim rig")
-    return own
-
-
-def _play_own(args, out: Path, curves, fps: float, name: str) -> None:
-    from faceanim.avatar import play_on_avatar
-
-    played = play_on_avatar(args.face, out, curves, fps, name)
-    for mesh, names in played.driven.items():
-        print(f"{len(names)} ARKit curves onto the avatar's own targets of mesh '{shown(mesh, 60)}'")
-    report([out])
 
 
 def _cmd_arkit_play(args) -> None:
@@ -214,9 +189,9 @@ def _cmd_arkit_play(args) -> None:
         from faceanim.limits import check_video
 
         check_video(n, args.size, args.size)
-    if _own_targets(args, suffix):
+    if own_targets(args, suffix):
         print(f"{n} frames ({take.duration:.1f} s) of the take at {args.fps:g} fps")
-        _play_own(args, out, take.resample(args.fps).weights, args.fps, "take")
+        report([play_own(args, out, take.resample(args.fps).weights, args.fps, "take")])
         return
     face = load_face(args) if suffix != ".csv" else None
     with progress(n if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
