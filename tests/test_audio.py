@@ -182,3 +182,13 @@ def test_alignment_from_a_24_bit_flac_of_real_speech(tmp_path):
     for a, b in zip(from_wav, from_flac, strict=True):
         assert abs(a.start - b.start) <= 0.011 and abs(a.end - b.end) <= 0.011
     assert from_flac[-1].end <= len(y) / r + 0.02
+
+
+def test_a_folder_or_device_is_not_an_audio_file(tmp_path):
+    from faceanim.io.audio import AudioError, read_audio
+
+    for path in (tmp_path, "/dev/zero"):
+        with pytest.raises(AudioError, match="not a regular file"):
+            read_audio(path)
+    with pytest.raises(AudioError, match="does not exist"):
+        read_audio(tmp_path / "none.wav")

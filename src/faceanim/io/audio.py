@@ -56,6 +56,8 @@ def read_audio(path: str | os.PathLike, what: str = "audio file") -> tuple[np.nd
     import soundfile as sf
 
     p = Path(path)
+    if p.exists() and not p.is_file():
+        raise AudioError(f"{what} '{p}' is not a regular file (a folder or a device); give an audio file")
     if not p.is_file():
         raise AudioError(f"{what} '{p}' does not exist; check the path")
     if p.stat().st_size == 0:
