@@ -233,14 +233,17 @@ def own_targets(args, suffix: str) -> bool:
     """Whether the curves go onto the --face avatar's own morph targets by their ARKit names: the face
     is a .glb/.vrm that has such targets and the output is .glb/.vrm. A .vrm output needs one."""
     face = Path(args.face) if args.face else None
-    own = False
+    own = vrm = False
     if face is not None and face.suffix.lower() in (".glb", ".vrm") and suffix in (".glb", ".vrm"):
         from faceanim.avatar import arkit_targets
         from faceanim.io.scene import read_scene
 
-        scene = read_scene(face)
-        own = bool(arkit_targets(scene))
-        vrm = bool({"VRMC_vrm", "VRM"} & set(scene.document.extensions or {}))
+        try:
+            scene = read_scene(face)
+        except FaceAnimError:  # damaged or not an avatar: loading it as a face says what is wrong
+            scene = None
+        own = scene is not None and bool(arkit_targets(scene))
+        vrm = own and bool({"VRMC_vrm", "VRM"} & set(scene.document.extensions or {}))
     if suffix == ".vrm" and not (own and vrm):
         raise CommandError("a .vrm output plays onto a --face VRM avatar whose morph targets carry ARKit's names; "
                            "write .glb, or rig the avatar first with faceanim rig")
