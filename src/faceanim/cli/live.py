@@ -34,9 +34,9 @@ def _cmd_live(args) -> None:
 
         model = check_model(args.face)
         if not driven_curves(model.doc):
-            raise CommandError(f"'{shown(model.path.name, 60)}' has no morph target or VRM expression named by ARKit (jawOpen, "
-                               "eyeBlinkLeft ... in any spelling) nor VRM blink/aa presets; rig it first with "
-                               "faceanim rig")
+            raise CommandError(f"'{shown(model.path.name, 60)}' has no morph target or VRM expression named by "
+                               "ARKit (jawOpen, eyeBlinkLeft ... in any spelling) nor VRM blink/aa presets; rig it "
+                               "first with faceanim rig")
     if len(views) > 1:
         raise CommandError("give --to viewer once (one page serves any number of browsers)")
     if views:
@@ -93,9 +93,11 @@ def _cmd_live(args) -> None:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("live", help="a camera or a clip drives ARKit curves live: VMC apps, Unreal Live Link, CSV, the viewer",
+    p = sub.add_parser("live", help="a camera, a clip or a sound drives ARKit curves live: VMC apps, Unreal Live "
+                                    "Link, CSV, the viewer",
                        description="Track a face live (a camera, or a clip played at its own frame rate), run the "
-                                   "performance synthesis of `faceanim perform` causally, and send ARKit's 52 curves "
+                                   "performance synthesis of `faceanim perform` causally (and/or lip sync a sound "
+                                   "played in real time, --audio), and send ARKit's 52 curves "
                                    "with the head's and eyes' angles to each --to: vmc://HOST:PORT (VSeeFace, VNyan, "
                                    "Warudo, VMagicMirror; port 39539), livelink://HOST:PORT (Unreal's Live Link, "
                                    "port 11111), csv:PATH (a Live Link Face CSV of the run, written when it stops), "

@@ -50,7 +50,8 @@ def _address(spec: str, scheme: str, default_port: int) -> tuple[int, tuple]:
         host, port = rest, str(default_port)
     host = host.strip("[]")
     if not host or "/" in host or not port.isdigit() or not 1 <= int(port) <= 65535:
-        raise FaceAnimError(f"--to {scheme}:// needs HOST:PORT (port 1-65535), as in {scheme}://127.0.0.1:{default_port}")
+        raise FaceAnimError(f"--to {scheme}:// needs HOST:PORT (port 1-65535), as in "
+                            f"{scheme}://127.0.0.1:{default_port}")
     try:
         infos = socket.getaddrinfo(host, int(port), type=socket.SOCK_DGRAM)
     except (socket.gaierror, UnicodeError):

@@ -44,7 +44,8 @@ def default_avatar(folder: Path) -> Path:
 
     face = Face.default()
     shapes, _ = arkit_shapes(face)
-    return write_gltf(folder / "default_face_arkit.glb", face.mesh, shapes, extras={"morph_sets": {"arkit": list(shapes)}})
+    return write_gltf(folder / "default_face_arkit.glb", face.mesh, shapes,
+                      extras={"morph_sets": {"arkit": list(shapes)}})
 
 
 def viewer_port(spec: str) -> int:
@@ -116,7 +117,8 @@ class ViewerSink(Sink):
         self.http.viewer.live = {"url": f"ws://{HOST}:{ws_port}/", "names": apple_names()}
         self.url = self.http.url
         self.label = f"viewer {self.url}"
-        self._origins = {f"http://{HOST}:{self.http.server_address[1]}", f"http://localhost:{self.http.server_address[1]}"}
+        port = self.http.server_address[1]
+        self._origins = {f"http://{HOST}:{port}", f"http://localhost:{port}"}
         threading.Thread(target=self.http.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True).start()
         threading.Thread(target=self.ws.serve_forever, daemon=True).start()
 

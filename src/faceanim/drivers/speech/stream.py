@@ -95,7 +95,8 @@ class PhoneStream:
         out = []
         for seg in self.dec.seg() or []:
             name = "SIL" if seg.word in NOISE else seg.word
-            out.append(Phone(name, self.offset + seg.start_frame * FRAME, self.offset + (seg.end_frame + 1) * FRAME, ""))
+            start, end = seg.start_frame * FRAME, (seg.end_frame + 1) * FRAME
+            out.append(Phone(name, self.offset + start, self.offset + end, ""))
         return out
 
     def _restart(self) -> None:
