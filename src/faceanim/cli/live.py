@@ -111,7 +111,7 @@ def register(sub) -> None:
     p.add_argument("--mouth", choices=("audio", "video", "both"),
                    help="with --audio and a video or camera: whose mouth the avatar has (default: both, averaged; "
                         "the lips shut when either shuts them)")
-    p.add_argument("--to", action="append", default=[], metavar="SINK", required=True,
+    p.add_argument("--to", action="append", metavar="SINK", required=True,
                    help="where the curves go (repeatable): vmc://HOST:PORT, livelink://HOST:PORT, csv:PATH or "
                         "viewer[:PORT] (the faceanim view page, 8760 by default)")
     p.add_argument("--subject", default="faceanim", help="the Live Link subject name")
