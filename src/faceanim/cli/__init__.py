@@ -124,7 +124,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     quiet_native_logs(args.verbose)
     name = " ".join(x for x in (args.command, getattr(args, "wires_command", None),
-                                getattr(args, "fap_command", None), getattr(args, "mocap_command", None)) if x)
+                                getattr(args, "fap_command", None), getattr(args, "mocap_command", None),
+                                getattr(args, "arkit_command", None)) if x)
     try:
         args.func(args)
     except FaceAnimError as exc:

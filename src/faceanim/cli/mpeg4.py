@@ -62,16 +62,7 @@ def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
                                    "face, brows, eyes, mouth or head")
             glb = write_arkit_gltf(out, face, weights, stream.fps, head_quaternions(head, face.frame.rotation),
                                    "animation", {"fps": stream.fps, **(extras or {})}, quantize=args.compact)
-        if wav is None:
-            return [glb]
-        from faceanim.io.audio import read_audio, write_wav
-
-        try:
-            samples, rate = read_audio(audio)
-            return [glb, write_wav(wav, samples, rate)]
-        except BaseException:
-            glb.unlink(missing_ok=True)  # no half of the pair left behind
-            raise
+        return [glb] if wav is None else _sound_beside(glb, wav, audio)
     with progress(stream.n_frames, f"rendering {out.name}", args.quiet) as bar:
         return [render_stream(rig, stream, out, face.view(), size=args.size, audio=audio, progress=bar)]
 
@@ -137,7 +128,6 @@ def _say_arkit(args, face, phones, wav) -> tuple[list[Path], int, float]:
                 table[:, a] = curves[:, column[apple_name(name)]]
         return [write_arkit_csv(out, table, args.fps, np.zeros((len(curves), 3)))], len(curves), args.fps
     if suffix == ".glb":
-        from faceanim.io.audio import read_audio, write_wav
         from faceanim.io.gltf import sound_companion, write_gltf
 
         used = [k for k in range(len(names)) if curves[:, k].max() > 0]
@@ -145,12 +135,7 @@ def _say_arkit(args, face, phones, wav) -> tuple[list[Path], int, float]:
         glb = write_gltf(out, face.mesh, {names[k]: rig.blendshape(names[k]) for k in used},
                          times=np.arange(len(curves)) / args.fps, weights=curves[:, used], animation_name=out.stem,
                          quantize=args.compact, extras={"fps": args.fps, "audio": companion.name})
-        try:
-            samples, rate = read_audio(wav)
-            return [glb, write_wav(companion, samples, rate)], len(curves), args.fps
-        except BaseException:
-            glb.unlink(missing_ok=True)  # no half of the pair left behind
-            raise
+        return _sound_beside(glb, companion, wav), len(curves), args.fps
     from faceanim.player import render_curves
 
     with progress(len(curves), f"rendering {out.name}", args.quiet) as bar:
@@ -158,12 +143,24 @@ def _say_arkit(args, face, phones, wav) -> tuple[list[Path], int, float]:
                 len(curves), args.fps)
 
 
+def _sound_beside(glb: Path, companion: Path, wav) -> list[Path]:
+    """The sound ``wav`` written as ``companion`` beside a written ``glb``; the glb removed if that fails
+    (no half of the pair left behind)."""
+    from faceanim.io.audio import read_audio, write_wav
+
+    try:
+        samples, rate = read_audio(wav)
+        return [glb, write_wav(companion, samples, rate)]
+    except BaseException:
+        glb.unlink(missing_ok=True)
+        raise
+
+
 def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
     """``say`` onto the --face avatar's own ARKit-named targets: the same avatar with the speech as one
     more animation, the sound beside it (named in the scene's extras)."""
     from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
     from faceanim.io.arkit_csv import ARKIT_NAMES
-    from faceanim.io.audio import read_audio, write_wav
     from faceanim.io.gltf import sound_companion
 
     names = [n[0].lower() + n[1:] for n in ARKIT_NAMES]
@@ -174,12 +171,7 @@ def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
     out = Path(args.output)
     companion = sound_companion(out)
     play_own(args, out, curves, args.fps, out.stem, {"audio": companion.name, "fps": args.fps})
-    try:
-        samples, rate = read_audio(wav)
-        return [out, write_wav(companion, samples, rate)], len(curves), args.fps
-    except BaseException:
-        out.unlink(missing_ok=True)  # no half of the pair left behind
-        raise
+    return _sound_beside(out, companion, wav), len(curves), args.fps
 
 
 def _cmd_say(args) -> None:

@@ -147,7 +147,10 @@ def _cmd_perform(args) -> None:
         w, h = info.size
         check_video(info.frames_expected, max(2, int(round(w * args.size / h / 2)) * 2) + args.size, args.size)
     db = load_database(args.db) if args.db else default_database()
-    own = not args.bases and own_targets(args, suffix)
+    if args.bases and suffix == ".vrm":
+        raise CommandError("--bases writes faceanim's own basis targets to .glb; a .vrm output plays ARKit's curves "
+                           "onto a --face VRM avatar (leave out --bases)")
+    own = own_targets(args, suffix) and not args.bases
     face = load_face(args) if suffix != ".csv" and not own else None
     with progress(info.frames_expected, "tracking", args.quiet) as bar:
         tr = track_frames(video_frames(info), info.fps, args.neutral_frame, bar)

@@ -16,6 +16,7 @@ sent (no route, nobody listening) is counted and said once on stderr, and the ru
 from __future__ import annotations
 
 import socket
+from abc import ABC, abstractmethod
 import sys
 import uuid
 from pathlib import Path
@@ -30,13 +31,14 @@ SCHEMES = ("vmc", "livelink", "csv", "viewer")
 MAX_SUBJECT = 64
 
 
-class Sink:
+class Sink(ABC):
     """A destination of live samples (see the module docstring)."""
 
     label = "sink"
 
+    @abstractmethod
     def send(self, sample: LiveSample) -> None:
-        raise NotImplementedError
+        """Take one frame (never waiting on the receiver)."""
 
     def close(self) -> Path | None:
         """Finish; a file sink returns the file it wrote."""

@@ -8,6 +8,7 @@ counted as dropped, so latency does not grow when the compute falls behind.
 from __future__ import annotations
 
 import threading
+from abc import ABC, abstractmethod
 import time
 from dataclasses import dataclass
 
@@ -67,7 +68,7 @@ class Latest:
             return frame
 
 
-class Source:
+class Source(ABC):
     """A thread feeding a :class:`Latest`; ``start()``, ``stop()``, ``fps``, ``name`` and ``images``
     (whether its frames carry pictures to track)."""
 
@@ -93,8 +94,9 @@ class Source:
         except Exception as exc:  # noqa: BLE001 -- a capture failure ends the run with one line
             self.slot.end(FaceAnimError(f"{self.name} stopped ({type(exc).__name__})"))
 
+    @abstractmethod
     def _run(self) -> None:
-        raise NotImplementedError
+        """Capture until the source ends or :meth:`stop`, putting frames into :attr:`slot`."""
 
     def stop(self) -> None:
         self._stop.set()
