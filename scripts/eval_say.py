@@ -19,9 +19,15 @@ units; the default face has the generic head's topology).
 
 - ``--librivox DIR``: the same on recorded speech (each WAV aligned with its transcript), the
   timing a user's own recording gets.
+- ``--voices de,es,fr``: the same for sentences of other languages (:data:`LANGUAGES`, spoken by
+  that espeak-ng voice; phones from espeak-ng's IPA); vowel classes are measured on every voice.
+- ``--recognition``: ``say --audio`` without a transcript hears phones with an English all-phone
+  recogniser; how often its viseme class (:data:`VISUAL`) is the true one, per 10 ms of speech, on
+  espeak-ng's speech of each voice (the truth: espeak-ng's own phones) and on the LibriVox clips
+  (the truth: the forced alignment with the transcript), and how many p/b/m it hears as p/b/m.
 
 Usage (from /work/main): ``python scripts/eval_say.py [--strips DIR] [--paths arkit,fap]
-[--librivox ../shared/data/speech-librivox [--only-librivox]]``
+[--voices en-us,de,es,fr] [--recognition] [--librivox ../shared/data/speech-librivox [--only-librivox]]``
 """
 
 from __future__ import annotations
@@ -38,6 +44,15 @@ sys.path.insert(0, str(ROOT / "scripts"))
 
 SENTENCES = ("how now brown cow", "Peter Piper picked a peck of pickled peppers",
              "the quick brown fox jumps over the lazy dog", "we do too, she said, you ought to see it")
+LANGUAGES = {  # sentences with many p, b, m, rounded and open vowels
+    "de": ("Peter und Paul bauen ein Boot am Meer", "bitte bring mir meine blaue Mappe"),
+    "es": ("Pablo bebe mucho vino blanco", "mi madre compra pan en el mercado"),
+    "fr": ("Pierre boit une bouteille de bon vin", "ma mère porte un beau pull blanc"),
+}
+# the mouth's classes for recognition: what the lips and jaw show
+VISUAL = {"closed": "P B M", "labiodental": "F V", "rounded": "UW OW AO W UH OY R ER", "open": "AA AE AH AW AY",
+          "spread": "IY IH EH EY Y", "dental": "TH DH", "post": "SH ZH CH JH", "tongue": "T D N L K G NG S Z HH"}
+VISUAL_OF = {p: k for k, v in VISUAL.items() for p in v.split()}
 CLASSES = {"open": ("AA", "AE", "AY", "AW"), "mid": ("AH", "EH", "ER", "EY"), "spread": ("IY", "IH"),
            "rounded": ("AO", "OW", "UW", "UH", "OY")}
 DIPHTHONGS = ("AW", "AY", "EY", "OW", "OY")  # measured in their first part (a third of the way in)
@@ -111,7 +126,7 @@ def strip(path, imgs, phones):
     iio.imwrite(path, np.vstack(rows))
 
 
-def evaluate(face, sentence, how, strips: Path | None):
+def evaluate(face, sentence, how, strips: Path | None, voice: str = "en-us"):
     """``sentence``: text to speak, or a (WAV, transcript) pair of recorded speech (aligned)."""
     import tempfile
 
@@ -122,13 +137,14 @@ def evaluate(face, sentence, how, strips: Path | None):
         phones = align(wav, sentence)
     else:
         with tempfile.TemporaryDirectory() as tmp:
-            phones = say_timed(sentence, Path(tmp) / "s.wav")
+            phones = say_timed(sentence, Path(tmp) / "s.wav", voice=voice)
     n = int(np.ceil((max(p.end for p in phones) + 0.2) * FPS)) + 1
     rig, curves = (curves_fap if how == "fap" else curves_arkit)(face, phones, n)
     mouth, imgs = measure(face, rig, curves)
     if strips:
         strips.mkdir(parents=True, exist_ok=True)
-        strip(strips / f"{how}-{'-'.join(sentence.lower().split()[:3]).replace(',', '')}.png", imgs, phones)
+        lang = "" if voice == "en-us" else f"{voice}-"
+        strip(strips / f"{how}-{lang}{'-'.join(sentence.lower().split()[:3]).replace(',', '')}.png", imgs, phones)
     vowels = []
     for p in phones:
         cls = next((c for c, members in CLASSES.items() if p.phone in members), None)
@@ -152,6 +168,60 @@ def evaluate(face, sentence, how, strips: Path | None):
     return vowels, bad, bilabial
 
 
+def recognition(ref, heard, length: float) -> tuple[int, int, int, int]:
+    """(10 ms steps of speech whose heard class is the true one, steps of speech, p/b/m of the
+    truth heard as a p, b or m overlapping it, p/b/m of the truth)."""
+    t = np.arange(0.0, length, 0.01) + 0.005
+
+    def classes(phones):
+        out = np.full(len(t), "", dtype=object)
+        for p in phones:
+            out[(t >= p.start) & (t < p.end)] = VISUAL_OF.get(p.phone.rstrip("012"), "")
+        return out
+
+    a, b = classes(ref), classes(heard)
+    speech = a != ""
+    closures = [p for p in ref if p.phone in ("P", "B", "M")]
+    found = sum(any(q.phone in ("P", "B", "M") and q.start < p.end + 0.03 and q.end > p.start - 0.03 for q in heard)
+                for p in closures)
+    return int((a[speech] == b[speech]).sum()), int(speech.sum()), found, len(closures)
+
+
+def recognition_table(librivox: Path | None, voices: list[str]) -> None:
+    import tempfile
+
+    from faceanim.drivers.speech import align, recognise_phones
+    from faceanim.drivers.speech.phonemes import espeak_phones
+    from faceanim.io.audio import write_wav
+
+    print("\n## say --audio without a transcript (an English all-phone recogniser)\n")
+    print("| speech | truth | seconds | viseme class right (10 ms steps) | p/b/m heard |\n|---|---|---:|---:|---:|")
+    for voice in voices:
+        right = total = found = n = 0
+        seconds = 0.0
+        for sentence in LANGUAGES.get(voice, SENTENCES):
+            x, rate, phones = espeak_phones(sentence, voice)
+            with tempfile.TemporaryDirectory() as tmp:
+                wav = Path(tmp) / "s.wav"
+                write_wav(wav, x, rate)
+                heard = recognise_phones(wav)
+            r = recognition(phones, heard, len(x) / rate)
+            right, total, found, n = right + r[0], total + r[1], found + r[2], n + r[3]
+            seconds += len(x) / rate
+        print(f"| espeak-ng {voice} | espeak-ng's phones | {seconds:.1f} | {right / total:.0%} | {found}/{n} |")
+    if librivox:
+        from faceanim.io.audio import read_audio
+
+        right = total = found = n = 0
+        seconds = 0.0
+        for wav in sorted(librivox.glob("*.wav")):
+            x, rate = read_audio(wav)
+            r = recognition(align(wav, wav.with_suffix(".txt").read_text()), recognise_phones(wav), len(x) / rate)
+            right, total, found, n = right + r[0], total + r[1], found + r[2], n + r[3]
+            seconds += len(x) / rate
+        print(f"| LibriVox (English, recorded) | forced alignment | {seconds:.1f} | {right / total:.0%} | {found}/{n} |")
+
+
 def main(argv=None) -> None:
     from faceanim.face.face import Face
 
@@ -160,19 +230,30 @@ def main(argv=None) -> None:
     ap.add_argument("--librivox", type=Path, help="also (or with --only-librivox, only) the recorded clips of "
                     "this folder (../shared/data/speech-librivox: WAV + transcript, aligned)")
     ap.add_argument("--only-librivox", action="store_true", help="leave the spoken sentences out")
+    ap.add_argument("--voices", default="en-us", help="espeak-ng voices to speak with, comma-separated: en-us "
+                    "speaks the English sentences, de, es, fr their own (default: en-us)")
+    ap.add_argument("--recognition", action="store_true", help="only the recogniser's table (say --audio "
+                    "without a transcript) on each voice's speech and the --librivox clips")
     ap.add_argument("--paths", default="arkit", help="arkit (say's lip sync), fap (the MPEG-4 visemes say used "
                     "before, still what it writes to .fap) or both: arkit,fap")
     args = ap.parse_args(argv)
+    voices = args.voices.split(",")
+    for v in voices:
+        if v != "en-us" and v not in LANGUAGES:
+            ap.error(f"no sentences for voice {v!r}; give en-us or one of {', '.join(LANGUAGES)}")
+    if args.recognition:
+        recognition_table(args.librivox, voices)
+        return
     face = Face.default()
     for how in args.paths.split(","):
         if how not in ("arkit", "fap"):
             ap.error(f"unknown path {how!r}; give arkit, fap or arkit,fap")
         vowels, closures, bilabials = [], [], []
-        inputs = [] if args.only_librivox else list(SENTENCES)
+        inputs = [] if args.only_librivox else [(s, v) for v in voices for s in LANGUAGES.get(v, SENTENCES)]
         if args.librivox:
-            inputs += [(wav, wav.with_suffix(".txt").read_text()) for wav in sorted(args.librivox.glob("*.wav"))]
-        for s in inputs:
-            v, bad, shut = evaluate(face, s, how, args.strips)
+            inputs += [((wav, wav.with_suffix(".txt").read_text()), "en-us") for wav in sorted(args.librivox.glob("*.wav"))]
+        for s, voice in inputs:
+            v, bad, shut = evaluate(face, s, how, args.strips, voice)
             vowels += v
             closures += bad
             bilabials += shut

@@ -30,7 +30,7 @@ def _validate(path):
 
 
 def _source_vertex(gltf, prim, mesh):
-    """The glTF vertex -> mesh vertex map, checked against the layout the README states: the
+    """The glTF vertex -> mesh vertex map, checked against the layout docs/formats.md states: the
     mesh's own vertices first, in order, then the seam copies (one per extra UV of a vertex), and
     the triangles are the mesh's triangles."""
     n = gltf.accessors[prim.attributes.POSITION].count

@@ -534,7 +534,9 @@ def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | 
       the scales are in the scene's ``extras.basis_spread``), the weights and the head's rotation
       (a node ``head`` at :func:`head_pivot`) animated per frame;
     - ``.mp4``: the frames of ``video`` (the one tracked) beside the face rendered at ``size``
-      pixels high, with the video's sound.
+      pixels high, with the video's sound;
+    - ``.tsv``, ``.json``: Rhubarb Lip Sync's mouth cues of the ARKit curves
+      (:func:`faceanim.drivers.cues.arkit_cues`), the video named as the sound.
     """
     import tempfile
 
@@ -545,6 +547,13 @@ def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | 
     if suffix == ".csv":
         eyes = eye_angles(perf.weights[:, 2 * db.n_bases + 2:2 * db.n_bases + 10])
         return write_arkit_csv(path, arkit_curves(perf, db), perf.fps, np.radians(perf.pose[:, :3]), eyes)
+    if suffix in (".tsv", ".json"):
+        from faceanim.drivers.cues import arkit_cues
+        from faceanim.io.arkit_csv import ARKIT_NAMES
+        from faceanim.io.rhubarb import write_cues
+
+        cues = arkit_cues(arkit_curves(perf, db), ARKIT_NAMES, perf.fps)
+        return write_cues(path, cues, perf.n_frames / perf.fps, str(Path(video).resolve()) if video else "")
     if face is None:
         raise FaceAnimError(f"a {suffix} output needs the face to animate")
     rig = performance_rig(face, db)
@@ -578,7 +587,7 @@ def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | 
             faces = (r.render(v) for v in performance_frames(perf, rig, face))
             return write_video(path, side_by_side(video_frames(info), faces, size), fps=perf.fps, audio=sound,
                                progress=progress)
-    raise FaceAnimError(f"unknown output kind '{shown(suffix)}'; write .glb, .mp4 or .csv")
+    raise FaceAnimError(f"unknown output kind '{shown(suffix)}'; write .glb, .mp4, .csv, .tsv or .json")
 
 
 def head_quaternions(angles: np.ndarray, axes: np.ndarray) -> np.ndarray:
@@ -652,4 +661,4 @@ def write_take(path, take, face: Face | None = None, fps: float = 30.0, size: in
         with OffscreenRenderer(face.mesh, size=(size, size), **face.view(yaw=0.0, pitch=0.0)) as renderer:
             frames = (renderer.render(v) for v in performance_frames(perf, rig, face))
             return write_video(path, frames, fps=fps, progress=progress)
-    raise FaceAnimError(f"unknown output kind '{shown(suffix)}'; write .glb, .mp4 or .csv")
+    raise FaceAnimError(f"unknown output kind '{shown(suffix)}'; write .glb, .mp4, .csv, .tsv or .json")

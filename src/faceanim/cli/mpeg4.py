@@ -24,6 +24,7 @@ from faceanim.cli.common import (
     play_own,
     progress,
 )
+from faceanim.io.rhubarb import CUE_SUFFIXES
 from faceanim.limits import DEFAULT_FPS
 
 
@@ -82,6 +83,28 @@ def _say_phones(args, voice, tmp: Path) -> tuple[list, Path]:
         return recognise_phones(wav), wav
     wav = tmp / "speech.wav"
     return say_timed(args.text, wav, voice=voice), wav
+
+
+def _say_cues(args, phones, wav) -> tuple[list[Path], int]:
+    """``say`` to Rhubarb Lip Sync's mouth cues (.tsv, .json); speech made from text is written beside
+    them (the JSON names it), recorded speech is named where it is."""
+    from faceanim.drivers.cues import phone_cues
+    from faceanim.io.audio import read_audio, write_wav
+    from faceanim.io.rhubarb import cue_sound, tidy_cues, write_cues
+
+    samples, rate = read_audio(wav)
+    duration = len(samples) / rate
+    out = Path(args.output)
+    cues = phone_cues(phones)
+    if args.audio:
+        return [write_cues(out, cues, duration, str(Path(args.audio).resolve()))], len(tidy_cues(cues, duration))
+    sound = cue_sound(out)
+    written = write_cues(out, cues, duration, sound.name)
+    try:
+        return [written, write_wav(sound, samples, rate)], len(tidy_cues(cues, duration))
+    except BaseException:
+        written.unlink(missing_ok=True)
+        raise
 
 
 def _say_fap(args, face, phones, wav) -> tuple[list[Path], int, float]:
@@ -193,12 +216,22 @@ def _cmd_say(args) -> None:
         from faceanim.io.audio import read_audio
 
         read_audio(args.audio, "recorded speech")
-    own = own_targets(args, Path(args.output).suffix.lower())
+    suffix = Path(args.output).suffix.lower()
+    if suffix in CUE_SUFFIXES:
+        if args.expression:
+            raise CommandError("mouth cues (.tsv, .json) show the mouth's shapes only; leave out --expression")
+        with tempfile.TemporaryDirectory() as tmp:
+            phones, wav = _say_phones(args, voice, Path(tmp))
+            written, n_cues = _say_cues(args, phones, wav)
+        note_written(written)
+        print(f"wrote {', '.join(map(str, written))} ({n_cues} mouth cues, {len(phones)} phones)")
+        return
+    own = own_targets(args, suffix)
     face = None if own else load_face(args)
     with tempfile.TemporaryDirectory() as tmp:
         phones, wav = _say_phones(args, voice, Path(tmp))
-        fap = Path(args.output).suffix.lower() == ".fap"
-        written, n_frames, fps = (_say_own if own else _say_fap if fap else _say_arkit)(args, face, phones, wav)
+        written, n_frames, fps = (_say_own if own else _say_fap if suffix == ".fap" else _say_arkit)(args, face,
+                                                                                                  phones, wav)
     note_written(written)
     print(f"wrote {', '.join(map(str, written))} ({n_frames} frames, {len(phones)} phones, {n_frames / fps:.1f} s)")
 
@@ -308,8 +341,9 @@ def _video_options(p, suffixes) -> None:
 
 def register(sub) -> None:
     sy = sub.add_parser("say", help="lip-sync: text (synthesized) or recorded speech + transcript to an animated "
-                                    "face, on its ARKit shapes (.glb, .mp4, .csv) or as MPEG-4 visemes (.fap); "
-                                    ".glb also writes the sound beside it (.wav)")
+                                    "face, on its ARKit shapes (.glb, .mp4, .csv), as MPEG-4 visemes (.fap) or "
+                                    "as Rhubarb Lip Sync's mouth cues (.tsv, .json); .glb and cues of text also "
+                                    "write the sound beside them (.wav)")
     sy.add_argument("text", nargs="?", help="what to say (spoken by espeak-ng)")
     sy.add_argument("--audio", metavar="SOUND", help="recorded speech (WAV of any sample format, FLAC, OGG) instead of text")
     sy.add_argument("--transcript", metavar="TXT", help="text file with the words spoken in --audio (more exact "
@@ -320,7 +354,7 @@ def register(sub) -> None:
     sy.add_argument("--intensity", type=INTENSITY, default=0.6, help="intensity of --expression (0..2)")
     sy.add_argument("--voice", default="en-us", help="espeak-ng voice (`espeak-ng --voices` lists them)")
     sy.add_argument("--fps", type=FPS, default=DEFAULT_FPS, help="frames per second (up to 240)")
-    _video_options(sy, [".mp4", ".glb", ".fap", ".csv"])
+    _video_options(sy, [".mp4", ".glb", ".fap", ".csv", *CUE_SUFFIXES])
     sy.set_defaults(func=_cmd_say)
 
     fp = sub.add_parser("fap", help="MPEG-4 FAP files")

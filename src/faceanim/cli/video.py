@@ -126,8 +126,9 @@ def _output(args, inputs, csv_is: str) -> tuple[Path, str]:
         raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
     check_outputs(args.output)
     suffix = out.suffix.lower()
-    if suffix == ".csv" and (args.face or args.landmarks):
-        raise CommandError(f"a .csv output {csv_is}, not a face: drop --face/--landmarks, or write .glb or .mp4")
+    if suffix in (".csv", ".tsv", ".json") and (args.face or args.landmarks):
+        what = csv_is if suffix == ".csv" else "holds mouth cues"
+        raise CommandError(f"a {suffix} output {what}, not a face: drop --face/--landmarks, or write .glb or .mp4")
     return out, suffix
 
 
@@ -151,7 +152,7 @@ def _cmd_perform(args) -> None:
         raise CommandError("--bases writes faceanim's own basis targets to .glb; a .vrm output plays ARKit's curves "
                            "onto a --face VRM avatar (leave out --bases)")
     own = own_targets(args, suffix) and not args.bases
-    face = load_face(args) if suffix != ".csv" and not own else None
+    face = load_face(args) if suffix not in (".csv", ".tsv", ".json") and not own else None
     with progress(info.frames_expected, "tracking", args.quiet) as bar:
         tr = track_frames(video_frames(info), info.fps, args.neutral_frame, bar)
     perf = perform(tr, db, raw=args.raw, window=args.window, k=args.k, overlap=args.overlap,
@@ -275,7 +276,8 @@ def register(sub) -> None:
                    help=".glb: one morph target per deformation basis (lower_01 ..., upper_01 ..., weights about "
                         "-1..1) instead of ARKit's 52")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    add_output(p, [".glb", ".vrm", ".mp4", ".csv"])
+    add_output(p, [".glb", ".vrm", ".mp4", ".csv", ".tsv", ".json"],
+               help=".tsv/.json: Rhubarb Lip Sync's mouth cues of the performer's mouth")
     p.set_defaults(func=_cmd_perform)
 
     a = sub.add_parser("arkit", help="Live Link Face recordings (Apple ARKit's 52 curves) played on any face")

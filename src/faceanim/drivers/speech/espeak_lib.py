@@ -1,12 +1,13 @@
 """espeak-ng's C library through ctypes: speech with its phoneme events, run as its own process.
 
 :func:`faceanim.drivers.speech.phonemes.espeak_phones` runs this file with the Python in use
-(``python espeak_lib.py OUT.raw`` with ``{"text", "voice", "rate"}`` as JSON on stdin): it speaks
-the text in one go, writes the sound to OUT.raw (16-bit mono at the library's rate) and prints, as
-JSON, the rate and the events: each phoneme's mnemonic and where its sound starts (ms), and each
-word's place in the text. A fresh process per text because the library keeps state between
-texts (a second text in one process comes out a few samples different) and can hang when
-re-initialised; nothing of faceanim is imported here. Exit code 3: the library is not there.
+(``python espeak_lib.py OUT.raw`` with ``{"text", "voice", "rate", "ipa"}`` as JSON on stdin): it
+speaks the text in one go, writes the sound to OUT.raw (16-bit mono at the library's rate) and
+prints, as JSON, the rate and the events: each phoneme's name (espeak-ng's mnemonic, or its IPA
+with ``"ipa": true``) and where its sound starts (ms), and each word's place in the text. A
+fresh process per text because the library keeps state between texts (a second text in one
+process comes out a few samples different) and can hang when re-initialised; nothing of faceanim
+is imported here. Exit code 3: the library is not there.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import ctypes.util
 import json
 import sys
 
-PHONEME_EVENTS, DONT_EXIT = 0x0001, 0x8000  # espeak_Initialize options
+PHONEME_EVENTS, PHONEME_IPA, DONT_EXIT = 0x0001, 0x0002, 0x8000  # espeak_Initialize options
 SYNCHRONOUS = 2  # AUDIO_OUTPUT_SYNCHRONOUS
 EVENT_END_OF_LIST, EVENT_WORD, EVENT_PHONEME = 0, 1, 7
 RATE_PARAMETER = 1  # espeakRATE
@@ -33,13 +34,13 @@ class _Event(ctypes.Structure):
                 ("user_data", ctypes.c_void_p), ("id", _Id)]
 
 
-def speak(text: str, voice: str, rate: int, out_path: str) -> dict:
+def speak(text: str, voice: str, rate: int, out_path: str, ipa: bool = False) -> dict:
     name = ctypes.util.find_library("espeak-ng") or "libespeak-ng.so.1"
     try:
         lib = ctypes.CDLL(name)
     except OSError:
         sys.exit(3)
-    sample_rate = int(lib.espeak_Initialize(SYNCHRONOUS, 0, None, PHONEME_EVENTS | DONT_EXIT))
+    sample_rate = int(lib.espeak_Initialize(SYNCHRONOUS, 0, None, PHONEME_EVENTS | (PHONEME_IPA if ipa else 0) | DONT_EXIT))
     if sample_rate <= 0:
         sys.exit(3)
     events = []
@@ -52,7 +53,7 @@ def speak(text: str, voice: str, rate: int, out_path: str) -> dict:
             while ev[k].type != EVENT_END_OF_LIST:
                 e = ev[k]
                 if e.type == EVENT_PHONEME:
-                    events.append(["phoneme", e.id.string.decode("ascii", "replace"), e.audio_position])
+                    events.append(["phoneme", e.id.string.decode("utf-8", "replace"), e.audio_position])
                 elif e.type == EVENT_WORD:
                     events.append(["word", [e.text_position, e.length], e.audio_position])
                 k += 1
@@ -76,4 +77,5 @@ def speak(text: str, voice: str, rate: int, out_path: str) -> dict:
 
 if __name__ == "__main__":
     request = json.loads(sys.stdin.read())
-    print(json.dumps(speak(str(request["text"]), str(request["voice"]), int(request["rate"]), sys.argv[1])))
+    print(json.dumps(speak(str(request["text"]), str(request["voice"]), int(request["rate"]), sys.argv[1],
+                           bool(request.get("ipa", False)))))

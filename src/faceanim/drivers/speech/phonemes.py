@@ -30,6 +30,7 @@ from faceanim.errors import FaceAnimError
 from faceanim.errors import shown as _shown
 from faceanim.io.audio import check_rate, read_audio, resample, write_wav
 from faceanim.limits import MAX_DURATION, MAX_TEXT
+from faceanim.standards.ipa import arpabet as ipa_arpabet
 
 log = logging.getLogger(__name__)
 
@@ -74,12 +75,15 @@ def check_text(text, what: str = "the text to say") -> str:
     if len(text) > MAX_TEXT:
         raise SpeechError(f"{what} has {len(text)} characters; faceanim speaks at most {MAX_TEXT} at once: "
                           "split it into several parts")
-    words_of(text, what)
+    if not re.search(r"[^\W_]", text):  # a letter or digit of any script
+        raise SpeechError(f"there are no words to speak in {what} (only spaces or punctuation); "
+                          "give words made of letters or digits")
     return text
 
 
 def words_of(text: str, what: str = "the text") -> list[str]:
-    """The speakable words of ``text``, lower case (letters, digits spelled as written, apostrophes)."""
+    """The words of an English transcript, lower case (letters, digits spelled as written,
+    apostrophes), as the pronunciation dictionary spells them."""
     words = re.findall(r"[a-z0-9']+", str(text).lower())
     words = [w.strip("'") for w in words if w.strip("'")]
     if not words:
@@ -384,38 +388,60 @@ def _arpabet(mnemonic: str) -> list[str] | None:
 
 
 def _library_speech(text: str, voice: str, speed: int) -> tuple[np.ndarray, int, list]:
-    """Run :mod:`faceanim.drivers.speech.espeak_lib` in a fresh process: the sound (float32) and
-    rate, and espeak-ng's events. OSError when espeak-ng's library is not there; espeak-ng's own
-    messages are never shown (logged at debug level)."""
+    """Run :mod:`faceanim.drivers.speech.espeak_lib` in two fresh processes side by side, one with
+    espeak-ng's phoneme mnemonics, one with IPA (the same synthesis, so the same events at the same
+    samples): the sound (float32) and rate, and espeak-ng's events, each phoneme event as
+    ``["phoneme", mnemonic, ms, ipa]`` (``ipa`` "" where the two runs disagree). OSError when
+    espeak-ng's library is not there; espeak-ng's own messages are never shown (logged at debug
+    level)."""
     import json
     import sys
     import tempfile
 
     from faceanim.drivers.speech import espeak_lib
 
+    failed = SpeechError(f"espeak-ng could not synthesize speech with voice '{_shown(voice)}'; "
+                         f"check it with `espeak-ng -v {_shown(voice)} hello`")
     with tempfile.TemporaryDirectory() as tmp:
-        raw = Path(tmp) / "speech.raw"
+        runs = []
         try:
-            result = subprocess.run([sys.executable, espeak_lib.__file__, str(raw)], capture_output=True, text=True,
-                                    input=json.dumps({"text": text, "voice": voice, "rate": speed}), check=False,
-                                    timeout=ESPEAK_TIMEOUT)
+            for ipa in (False, True):
+                proc = subprocess.Popen([sys.executable, espeak_lib.__file__, str(Path(tmp) / f"speech{int(ipa)}.raw")],
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                runs.append((proc, json.dumps({"text": text, "voice": voice, "rate": speed, "ipa": ipa})))
+            answers = [proc.communicate(request, timeout=ESPEAK_TIMEOUT) + (proc.returncode,) for proc, request in runs]
         except (OSError, subprocess.TimeoutExpired) as exc:
+            for proc, _ in runs:
+                proc.kill()
+                proc.wait()
             log.debug("espeak-ng's library could not be run: %s", exc)
             raise SpeechError("espeak-ng could not be run; check it with `espeak-ng -v en-us hello`") from None
-        if result.returncode == 3:
+        if any(code == 3 for *_, code in answers):
             raise OSError("espeak-ng's library is not available")
-        if result.stderr.strip():
-            log.debug("espeak-ng's library said: %s", result.stderr.strip())
+        parsed = []
+        for out, err, code in answers:
+            if err.strip():
+                log.debug("espeak-ng's library said: %s", err.strip())
+            try:
+                if code != 0:
+                    raise ValueError(f"exit code {code}")
+                answer = json.loads(out)
+                parsed.append((int(answer["rate"]), list(answer["events"])))
+            except (ValueError, KeyError, TypeError) as exc:
+                log.debug("espeak-ng's library failed: %s", exc)
+                raise failed from None
         try:
-            if result.returncode != 0:
-                raise ValueError(f"exit code {result.returncode}")
-            answer = json.loads(result.stdout)
-            rate, events = int(answer["rate"]), list(answer["events"])
-            x = np.fromfile(raw, dtype="<i2").astype(np.float32) / 32768.0
-        except (ValueError, KeyError, TypeError, OSError) as exc:
-            log.debug("espeak-ng's library failed: %s", exc)
-            raise SpeechError(f"espeak-ng could not synthesize speech with voice '{voice}'; "
-                              f"check it with `espeak-ng -v {voice} hello`") from None
+            x = np.fromfile(Path(tmp) / "speech0.raw", dtype="<i2").astype(np.float32) / 32768.0
+        except OSError:
+            raise failed from None
+    (rate, events), (_, ipa_events) = parsed
+    marks = [e for e in events if e[0] == "phoneme"]
+    ipa = [e for e in ipa_events if e[0] == "phoneme"]
+    same = len(marks) == len(ipa) and all(a[2] == b[2] for a, b in zip(marks, ipa))
+    if not same:
+        log.debug("espeak-ng's IPA and mnemonic runs differ; reading the mnemonics alone")
+    names = iter(ipa)
+    events = [e + [str(next(names)[1]) if same else ""] if e[0] == "phoneme" else e for e in events]
     return x, rate, events
 
 
@@ -423,8 +449,10 @@ def espeak_phones(text: str, voice: str = DEFAULT_VOICE, speed: int = WORD_WPM) 
     """Speak ``text`` with espeak-ng's library in one go (:mod:`~faceanim.drivers.speech.espeak_lib`)
     and return the sound (float32, mono), its rate and the phones with espeak-ng's own timing: each
     phoneme from where its sound starts to where the next one's does (a stop from :data:`CLOSURE`
-    before its burst, as its lips or tongue close before), as ARPAbet (:data:`ESPEAK_ARPABET`; a
-    two-phone mnemonic such as a syllabic l shared by :data:`INHERENT_MS`), pauses as ``SIL``, each
+    before its burst, as its lips or tongue close before), as the ARPAbet phones of the same mouth
+    (its IPA through :func:`faceanim.standards.ipa.arpabet`, so any language and any word espeak-ng
+    speaks; where espeak-ng gives no IPA, its mnemonic through :data:`ESPEAK_ARPABET`; a phone that
+    is two, such as a diphthong before r, shared by :data:`INHERENT_MS`), pauses as ``SIL``, each
     with its word. Raises OSError when the library cannot be loaded."""
     check_text(text)
     x, rate, events = _library_speech(text, check_voice(voice), check_speed(speed))
@@ -438,11 +466,13 @@ def espeak_phones(text: str, voice: str = DEFAULT_VOICE, speed: int = WORD_WPM) 
         word_at.append(ms / 1000.0)
         word_names.append(data[first:first + int(length)].decode("utf-8", "replace").lower())
     phones: list[Phone] = []
-    for k, (_, mnemonic, _) in enumerate(marks):
+    for k, (_, mnemonic, _, ipa) in enumerate(marks):
         a, b = starts[k], max(starts[k + 1], starts[k])
         if b <= a:
             continue
         names = _arpabet(mnemonic)
+        if names != ["SIL"]:
+            names = ipa_arpabet(ipa) or names
         if names is None:
             if phones:
                 last = phones[-1]
