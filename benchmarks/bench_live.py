@@ -42,7 +42,7 @@ import numpy as np
 from _timing import arguments, blas_threads, fmt_bytes, fmt_time, header, table, traced
 
 from faceanim.drivers.video.tracking import FaceTracker, track_frames
-from faceanim.io.arkit_csv import ARKIT_NAMES
+from faceanim.standards.arkit import ARKIT_NAMES
 from faceanim.io.files import native_stderr_quiet
 from faceanim.io.video import video_frames, video_info
 from faceanim.live.performer import LivePerformer

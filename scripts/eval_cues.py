@@ -35,9 +35,10 @@ def agreement(sentences) -> tuple[float, dict]:
     from faceanim.drivers.cues import arkit_cues, phone_cues
     from faceanim.drivers.speech.lipsync import lipsync_curves
     from faceanim.drivers.speech.phonemes import espeak_phones
-    from faceanim.io.arkit_csv import ARKIT_NAMES
 
-    names = [n[0].lower() + n[1:] for n in ARKIT_NAMES]
+    from faceanim.standards.arkit import APPLE_NAMES
+
+    names = list(APPLE_NAMES)
     confusion: dict = {}
     total = agree = 0
     for s in sentences:

@@ -19,7 +19,7 @@ tested on another.
    the face region, weights up to 1): the generated ARKit shapes (learned from ICT: another
    person) against the AU rig learned from this very person (in-sample).
 3. Time and size of `faceanim rig` on the default face and ICT.
-4. The eye angles a look curve stands for (``rig/arkit.LOOK_ANGLES``), regressed from the Live
+4. The eye angles a look curve stands for (``standards/arkit.LOOK_ANGLES``), regressed from the Live
    Link Face take in ``arkit-curves/`` (its eye yaw/pitch against its look curves).
 """
 
@@ -41,9 +41,9 @@ from faceanim.face.frame import rigid_align
 from faceanim.face.landmarks import detect_landmarks
 from faceanim.face.mesh import Mesh
 from faceanim.face.regions import face_region
-from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
+from faceanim.standards.arkit import ARKIT_NAMES, ict_name
 from faceanim.io.meshio import load_mesh
-from faceanim.rig.arkit import apple_name
+from faceanim.standards.arkit import apple_name
 from faceanim.rig.transfer import ExpressionTransfer, default_model, skull_vertices
 
 # ICT's transparent eye overlays (lacrimal fluid, eye blend, occlusion: drawn with alpha blending,
@@ -186,11 +186,11 @@ def main(argv=None) -> None:
             sheet(args.sheet, [(ict_face, real, "ICT's own"), (ict_face, gen, "faceanim on ICT"),
                                (fface, fauto.shapes, "faceanim on FaceWarehouse (learned on ICT)")])
 
-    # 4. the eye angles of a look curve at 1 (rig/arkit.LOOK_ANGLES), from the real take ----------
+    # 4. the eye angles of a look curve at 1 (standards/arkit.LOOK_ANGLES), from the real take ----------
     take = args.data / "arkit-curves" / "alex_rom_3.csv"
     if take.is_file():
         from faceanim.io.arkit_csv import read_arkit_csv
-        from faceanim.rig.arkit import LOOK_ANGLES
+        from faceanim.standards.arkit import LOOK_ANGLES
 
         import csv
 

@@ -12,13 +12,8 @@ from hypothesis import strategies as st
 
 from faceanim.errors import FaceAnimError, InputFileError
 from faceanim.face.generic_head import generic_head
-from faceanim.io.arkit_csv import (
-    ARKIT_NAMES,
-    EYE_NAMES,
-    HEAD_NAMES,
-    ict_name,
-    read_arkit_csv,
-)
+from faceanim.io.arkit_csv import read_arkit_csv
+from faceanim.standards.arkit import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES, ict_name
 
 TAKE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "arkit-curves" / "alex_rom_3.csv"
 needs_take = pytest.mark.skipif(not TAKE.is_file(), reason="../shared/data/arkit-curves is not here")

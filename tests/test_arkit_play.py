@@ -31,8 +31,9 @@ def test_arkit_rig_names_and_shapes_on_the_default_face():
     default face (made from the generic head) the retargeted shapes are within 10% of the shapes
     carried exactly by the fit; browInnerUp is the sum of ICT's halves."""
     from faceanim.face.default import default_shapes
-    from faceanim.io.arkit_csv import ARKIT_NAMES
-    from faceanim.rig.arkit import apple_name, arkit_rig
+    from faceanim.standards.arkit import ARKIT_NAMES
+    from faceanim.rig.arkit import arkit_rig
+    from faceanim.standards.arkit import apple_name
 
     rig, missing = arkit_rig(Face.default())
     assert missing == [] and rig.n_controls == 52
@@ -46,7 +47,8 @@ def test_arkit_rig_names_and_shapes_on_the_default_face():
 
 
 def _small_take(path: Path) -> None:
-    from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
+    from faceanim.io.arkit_csv import write_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
 
     w = np.zeros((20, len(ARKIT_NAMES)))
     w[:, ARKIT_NAMES.index("JawOpen")] = np.linspace(0, 1, 20)
@@ -57,9 +59,10 @@ def _small_take(path: Path) -> None:
 
 
 def test_arkit_play_writes_glb_csv_and_mp4(tmp_path):
-    from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
+    from faceanim.io.arkit_csv import read_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.io.gltf import glb_json
-    from faceanim.rig.arkit import apple_name
+    from faceanim.standards.arkit import apple_name
 
     _small_take(tmp_path / "take.csv")
     assert run(["arkit", "play", tmp_path / "take.csv", "-o", tmp_path / "t.glb"]) == 0
@@ -116,8 +119,10 @@ def test_arkit_play_bad_input(tmp_path, capsys):
 def test_the_real_take_on_another_person(tmp_path):
     """The real take on FaceWarehouse tester 1 (another mesh): at its widest jaw opening the lower
     lip goes down by over a tenth of the eye distance."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
-    from faceanim.rig.arkit import apple_name, arkit_rig
+    from faceanim.io.arkit_csv import read_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
+    from faceanim.rig.arkit import arkit_rig
+    from faceanim.standards.arkit import apple_name
 
     face = Face.load(DATA / "facewarehouse-tester1" / "pose_0.obj")
     rig, _ = arkit_rig(face)
@@ -135,7 +140,7 @@ def test_a_fap_stream_as_arkit_curves_follows_the_jaw():
     face's ARKit shapes: jawOpen follows open_jaw (r > 0.95), the stretch lands on the subject's
     left mouth corner, the blink on the left eye, and the fit leaves under half of the motion."""
     from faceanim.face.faps import N_FAPS, FapStream, faps
-    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.player import arkit_from_stream
     from faceanim.rig.mpeg4 import FapRig
 
@@ -160,7 +165,8 @@ def test_a_fap_stream_as_arkit_curves_follows_the_jaw():
 
 @pytest.mark.skipif(__import__("shutil").which("espeak-ng") is None, reason="espeak-ng is not installed")
 def test_say_writes_live_link_face_csv(tmp_path):
-    from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
+    from faceanim.io.arkit_csv import read_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
 
     assert run(["say", "Papa, how are you?", "--quiet", "-o", tmp_path / "s.csv"]) == 0
     take = read_arkit_csv(tmp_path / "s.csv")
@@ -172,7 +178,7 @@ def test_arkit_play_onto_the_avatars_own_targets(tmp_path):
     """A face rigged with ARKit's shapes, its jawOpen then edited (as in Blender: here doubled) and
     renamed to another spelling (JawOpen): `arkit play --face` plays the take onto the file's own
     targets by name, keeps the edit, and adds one animation whose weights are the take's."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.io.gltf import glb_json
     from faceanim.io.scene import read_scene, write_scene
 

@@ -19,9 +19,9 @@ import pytest
 
 from faceanim.autorig import viseme_mixes
 from faceanim.cli import main
-from faceanim.io.arkit_csv import ARKIT_NAMES
+from faceanim.standards.arkit import ARKIT_NAMES
 from faceanim.io.scene import read_scene
-from faceanim.rig.arkit import apple_name
+from faceanim.standards.arkit import apple_name
 from test_scene import decode, glb_parts  # the GLB read by hand, independently of io/scene.py
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

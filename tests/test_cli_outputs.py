@@ -202,7 +202,7 @@ def test_fap_play_glb_is_arkit_unless_faps(tmp_path):
     from gltf_reader import accessor
 
     from faceanim.face.faps import FapStream
-    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.io.fapfile import write_fap
     from faceanim.io.gltf import glb_json
 

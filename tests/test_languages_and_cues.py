@@ -15,7 +15,7 @@ from faceanim.cli import main
 from faceanim.drivers.cues import arkit_cues, phone_cues
 from faceanim.drivers.speech.lipsync import lipsync_curves, phone_target
 from faceanim.drivers.speech.phonemes import Phone, SpeechError, check_text
-from faceanim.io.arkit_csv import ARKIT_NAMES
+from faceanim.standards.arkit import ARKIT_NAMES
 from faceanim.io.rhubarb import tidy_cues, write_cues
 from faceanim.standards.ipa import IPA_ARPABET, arpabet
 from faceanim.standards.rhubarb import PHONE_SHAPES, SHAPES

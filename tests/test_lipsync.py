@@ -160,7 +160,8 @@ def test_say_writes_live_link_face_curves(tmp_path):
     """`say "bob" -o bob.csv`: the jaw opens for the vowel, the lips close for both b's
     (mouthClose up with the jaw), at Live Link Face's 52 columns."""
     from faceanim.cli import main
-    from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
+    from faceanim.io.arkit_csv import read_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
 
     out = tmp_path / "bob.csv"
     assert main(["say", "bob", "-o", str(out), "--fps", "60"]) == 0

@@ -23,8 +23,10 @@ from hypothesis import strategies as st
 
 from faceanim.errors import FaceAnimError, InputFileError
 from faceanim.face.face import Face
-from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
-from faceanim.io.livelink import PACKET_NAMES, decode_packet, encode_packet
+from faceanim.io.arkit_csv import read_arkit_csv
+from faceanim.standards.arkit import ARKIT_NAMES
+from faceanim.io.livelink import decode_packet, encode_packet
+from faceanim.standards.arkit import LIVE_LINK_ORDER
 from faceanim.io.vmc import decode_frame, encode_frame, head_quaternion
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -34,7 +36,7 @@ needs_clips = pytest.mark.skipif(not (CLIPS / "d18.mp4").exists(), reason="needs
 
 # -- Live Link packets -----------------------------------------------------------------------------
 def test_livelink_packet_matches_the_layout_built_by_hand():
-    values = {n: (k + 1) / 100.0 for k, n in enumerate(PACKET_NAMES)}
+    values = {n: (k + 1) / 100.0 for k, n in enumerate(LIVE_LINK_ORDER)}
     got = encode_packet(values, frame=1234, fps=30, subject="Face", device="ABC", subframe=0.25)
     want = (b"\x06" + struct.pack(">i", 3) + b"ABC" + struct.pack(">i", 4) + b"Face"
             + struct.pack(">i", 1234) + struct.pack(">f", 0.25) + struct.pack(">ii", 30, 1) + bytes([61])
@@ -43,10 +45,10 @@ def test_livelink_packet_matches_the_layout_built_by_hand():
     back = decode_packet(got)
     assert (back.device, back.subject, back.frame, back.rate) == ("ABC", "Face", 1234, (30, 1))
     assert back.values["JawOpen"] == pytest.approx(values["JawOpen"])
-    assert list(back.values) == list(PACKET_NAMES)
+    assert list(back.values) == list(LIVE_LINK_ORDER)
     # Unreal's enum: jaw left before right, unlike the app's CSV columns
-    assert PACKET_NAMES.index("JawLeft") < PACKET_NAMES.index("JawRight")
-    assert set(PACKET_NAMES[:52]) == set(ARKIT_NAMES)
+    assert LIVE_LINK_ORDER.index("JawLeft") < LIVE_LINK_ORDER.index("JawRight")
+    assert set(LIVE_LINK_ORDER[:52]) == set(ARKIT_NAMES)
 
 
 UNREAL_ENUM = """EyeBlinkLeft EyeLookDownLeft EyeLookInLeft EyeLookOutLeft EyeLookUpLeft EyeSquintLeft EyeWideLeft
@@ -60,7 +62,7 @@ LeftEyePitch LeftEyeRoll RightEyeYaw RightEyePitch RightEyeRoll""".split()  # Un
 
 
 def test_livelink_packet_order_is_unreals_enum():
-    assert PACKET_NAMES == tuple(UNREAL_ENUM)
+    assert LIVE_LINK_ORDER == tuple(UNREAL_ENUM)
 
 
 def test_livelink_ntsc_rate_is_a_rational():

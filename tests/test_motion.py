@@ -169,7 +169,7 @@ def test_control_parameters_of_the_markers_follow_the_recorded_curves():
     curves (R^2 of linear fits over the take)."""
     from faceanim.build.motion import marker_controls, stable_registration
     from faceanim.face.controls import CONTROL_NAMES
-    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.standards.arkit import ARKIT_NAMES
 
     head, m, take, _, x = _turned_take()
     rest = head.mesh.vertices[m]
@@ -196,7 +196,8 @@ def test_control_parameters_of_the_markers_follow_the_recorded_curves():
 
 def _small_take(tmp_path):
     """A short synthetic take (jaw opening and closing, a blink) written as a Live Link Face CSV."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES, read_arkit_csv
+    from faceanim.io.arkit_csv import read_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
 
     rows = [",".join(["Timecode", "BlendShapeCount", *ARKIT_NAMES, *HEAD_NAMES, *EYE_NAMES])]
     for i in range(40):

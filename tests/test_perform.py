@@ -141,7 +141,7 @@ def test_blinks_are_read_off_the_lids_in_the_performers_own_range(db):
     curve under 0.2: the closed lid is then taken as a tenth of the open one, not the shallowest dip."""
     from faceanim.drivers.video.tracking import Tracking
     from faceanim.face.controls import CONTROL_NAMES
-    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.perform import BLINK_DEAD, arkit_curves, blink_curves, perform
 
     n = 200
@@ -179,9 +179,9 @@ def test_gaze_is_read_off_the_irises(db):
     iris unseen, its offset thrown off) the gaze holds; the ARKit export carries the curves."""
     from faceanim.drivers.video.tracking import Tracking
     from faceanim.face.controls import CONTROL_NAMES
-    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.perform import EYE_CONTROLS, IRIS_RADIUS, arkit_curves, perform
-    from faceanim.rig.arkit import LOOK_ANGLES
+    from faceanim.standards.arkit import LOOK_ANGLES
 
     n = 120
     gaze = np.zeros((n, 4))
@@ -246,7 +246,8 @@ def test_perform_command_writes_glb_csv_and_mp4(tmp_path, db):
 
     from faceanim.drivers.video.tracking import track_video
     from faceanim.face.controls import CONTROL_NAMES
-    from faceanim.io.arkit_csv import ARKIT_NAMES, read_arkit_csv
+    from faceanim.io.arkit_csv import read_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.io.gltf import glb_json
     from faceanim.io.video import video_info
     from faceanim.perform import EYE_CONTROLS

@@ -103,7 +103,8 @@ def _set_cell(line: str, header: list[str], column: str, value: str) -> str:
 def inp(tmp_path_factory) -> Path:
     """A folder of bad (and a few good) inputs; tests only read it."""
     from faceanim.face.face import Face
-    from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
+    from faceanim.io.arkit_csv import write_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.render.video import write_video
 
     d = tmp_path_factory.mktemp("inputs")
@@ -553,7 +554,8 @@ def test_smallest_settings_run(real, at):
 def more(tmp_path_factory) -> Path:
     """Damaged databases with values out of range, takes with absurd numbers or gaps, a picture
     named as a video, a truncated video (made by faceanim's writer, index at the front)."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
+    from faceanim.io.arkit_csv import write_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.render.video import write_video
 
     d = tmp_path_factory.mktemp("more")

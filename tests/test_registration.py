@@ -201,7 +201,8 @@ def test_every_command_that_takes_a_face_refuses_a_sphere(nonface_files, tmp_pat
     """One line on stderr naming the problem, exit 2, nothing written."""
     from faceanim.cli import main
     from faceanim.face.faps import FapStream
-    from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
+    from faceanim.io.arkit_csv import write_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.io.fapfile import write_fap
 
     stream = FapStream.empty(4, 25.0)

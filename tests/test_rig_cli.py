@@ -72,7 +72,7 @@ def test_names_sets_and_the_mesh_come_back_as_they_went_in(default_rig):
 def test_eye_looks_turn_the_eyeballs_rigidly_the_right_way(default_rig):
     """At weight 1 each eyeball turns as a rigid body (its vertices keep their distances) by the
     Live Link take's angle, and its front moves to the subject's side the name says."""
-    from faceanim.rig.arkit import LOOK_ANGLES
+    from faceanim.standards.arkit import LOOK_ANGLES
     from faceanim.rig.mpeg4 import FapRig
 
     _, _, shapes, rest = default_rig
@@ -197,7 +197,7 @@ def test_vrm_binds_every_preset_on_a_face_with_eyes(tmp_path, capsys):
     assert list(custom) == APPLE_52
     assert all(names[e["morphTargetBinds"][0]["index"]] == n for n, e in custom.items())
     # the gaze reaches a look shape's full weight at the angle that shape turns the eye
-    from faceanim.rig.arkit import LOOK_ANGLES
+    from faceanim.standards.arkit import LOOK_ANGLES
 
     look = vrm["lookAt"]
     assert look["rangeMapHorizontalOuter"]["inputMaxValue"] == pytest.approx(np.degrees(LOOK_ANGLES["Out"]), abs=0.01)
@@ -285,7 +285,8 @@ def test_a_write_protected_output_is_kept_even_for_root(tmp_path, capsys):
 def test_arkit_play_drives_the_same_shapes_rig_writes(tmp_path, default_rig):
     """A take played on a face uses the targets `faceanim rig` writes for it (eyeballs turning
     with the look curves included): one rig, whatever drives it."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
+    from faceanim.io.arkit_csv import write_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
 
     w = np.zeros((10, len(ARKIT_NAMES)))
     w[:, ARKIT_NAMES.index("EyeLookOutLeft")] = np.linspace(0, 1, 10)

@@ -16,7 +16,8 @@ from gltf_reader import accessor
 from faceanim.errors import FaceAnimError
 from faceanim.face.face import Face
 from faceanim.face.mesh import Mesh
-from faceanim.io.vrm import DEFAULT_META, LICENSE_URL, PRESETS, REQUIRED_BONES, write_vrm
+from faceanim.io.vrm import DEFAULT_META, LICENSE_URL, REQUIRED_BONES, write_vrm
+from faceanim.standards.vrm import PRESETS
 
 MODULES = ROOT / "tools" / "node_modules"
 # presets bound to the face's ARKit shapes (Apple's Left/Right: the subject's own sides, as VRM's)

@@ -11,13 +11,16 @@ The sets (:data:`RIG_SETS`), each built from the input mesh and its landmarks al
   registration's similarity): no shape is copied, every displacement is rebuilt on the face's
   own surface. The ``eyeLook*`` shapes also turn the eyeballs when the mesh has them (ICT's own
   move only the lids): by the angles a real Live Link Face take records for a look curve at 1
-  (:data:`~faceanim.rig.arkit.LOOK_ANGLES`). ``tongueOut`` (which ICT lacks) comes from the
+  (:data:`~faceanim.standards.arkit.LOOK_ANGLES`). ``tongueOut`` (which ICT lacks) comes from the
   generic head's tongue pushed out (faceanim's own); a mesh with nothing in its mouth to carry it
   to gets none, reported.
 - ``visemes``: the 15 Oculus visemes (``viseme_sil`` ... ``viseme_U``, MPEG-4's visemes 0-14)
   as mixes of the face's own ARKit shapes (``data/visemes_arkit.json``): posed by the FAP rig
   they came out as grimaces (a review's pictures); the ARKit shapes keep jaw, lips and teeth
   natural.
+- ``rpm``: Ready Player Me's five extra shapes (``mouthOpen``, ``mouthSmile``, ``eyesClosed``,
+  ``eyesLookUp``, ``eyesLookDown``: :data:`~faceanim.standards.visemes.RPM_EXTRAS`), each the sum
+  of the face's own ARKit shapes it stands for.
 - ``au``: FACS action units, each with its one-sided halves (Erdogdu's control points, the AU
   library learned from real scans).
 - ``emotions``: the six basic emotions (``joy`` ... ``disgust``) as AU combinations.
@@ -37,8 +40,9 @@ import numpy as np
 from faceanim.errors import FaceAnimError, shown
 from faceanim.face.face import Face
 from faceanim.rig.rig import Rig
+from faceanim.standards.visemes import RPM_EXTRAS
 
-RIG_SETS = ("arkit", "visemes", "au", "emotions", "fap")
+RIG_SETS = ("arkit", "visemes", "rpm", "au", "emotions", "fap")
 
 
 EMOTIONS = ("joy", "sadness", "surprise", "fear", "anger", "disgust")
@@ -107,10 +111,10 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
     sets = [s for s in RIG_SETS if s in set(sets)]
     if not sets:
         raise FaceAnimError(f"no rig set asked for; choose from: {', '.join(RIG_SETS)}")
-    fap = FapRig.build(face) if {"arkit", "visemes", "fap"} & set(sets) else None
+    fap = FapRig.build(face) if {"arkit", "visemes", "rpm", "fap"} & set(sets) else None
     arkit = au_rig = None  # made once, for the sets that share them
     eyes = dict(fap.eyes) if fap is not None else {}
-    if {"arkit", "visemes"} & set(sets):  # eye plates (anime) turn too: the look presets apply
+    if {"arkit", "visemes", "rpm"} & set(sets):  # eye plates (anime) turn too: the look presets apply
         from faceanim.rig.arkit import face_eyes
 
         eyes = face_eyes(face, eyes)
@@ -140,11 +144,13 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
             arkit = made
             add(group, made)
             skipped.update(why)
-        elif group == "visemes":
+        elif group in ("visemes", "rpm"):
             if arkit is None:
                 arkit, _ = arkit_shapes(face, eyes)
-            add(group, {f"viseme_{v['oculus']}": sum((w * arkit[n] for n, w in v["arkit"].items()), np.zeros_like(rest))
-                        for v in viseme_mixes()})
+            mixes = ({f"viseme_{v['oculus']}": v["arkit"] for v in viseme_mixes()} if group == "visemes"
+                     else RPM_EXTRAS)
+            add(group, {name: sum((w * arkit[n] for n, w in mix.items() if n in arkit), np.zeros_like(rest))
+                        for name, mix in mixes.items()})
         elif group in ("au", "emotions"):
             if au_rig is None:
                 au_rig = ExpressionTransfer(face).rig(default_model(), sides=True)
@@ -234,7 +240,7 @@ def write_rigged(path, auto: AutoRig, compact: bool = False, meta: dict | None =
         return write_gltf(path, face.mesh, auto.shapes, quantize=compact, extras=extras), {}
     from faceanim.io.vrm import write_vrm
     from faceanim.perform import head_pivot
-    from faceanim.rig.arkit import LOOK_ANGLES
+    from faceanim.standards.arkit import LOOK_ANGLES
 
     expressions, left_out = vrm_expressions(auto)
     look_at = {key: {"inputMaxValue": round(float(np.degrees(LOOK_ANGLES[look])), 2), "outputScale": 1.0}

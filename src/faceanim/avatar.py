@@ -236,10 +236,10 @@ class AvatarPlay:
 
 
 def arkit_targets(scene) -> dict[int, dict[int, int]]:
-    """The scene's morph targets named by ARKit (any spelling, :func:`~faceanim.io.arkit_csv.name_key`):
-    {mesh index: {target index: column of :data:`~faceanim.io.arkit_csv.ARKIT_NAMES`}}, meshes with
+    """The scene's morph targets named by ARKit (any spelling, :func:`~faceanim.standards.arkit.name_key`):
+    {mesh index: {target index: column of :data:`~faceanim.standards.arkit.ARKIT_NAMES`}}, meshes with
     none left out."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES, name_key
+    from faceanim.standards.arkit import ARKIT_NAMES, name_key
 
     column = {name_key(n): k for k, n in enumerate(ARKIT_NAMES)}
     out = {}
@@ -257,7 +257,7 @@ def play_on_avatar(source, output, curves: np.ndarray, fps: float, name: str = "
     (F, 52, Live Link Face order, clamped to 0..1) played onto its own morph targets by their ARKit
     names, at ``fps``; its other targets stay at 0; ``extras`` are merged into the scene's (a sound
     beside it: ``{"audio": "x.wav"}``). Refused when no target carries an ARKit name."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.io.scene import read_scene, write_scene
 
     scene = read_scene(source)

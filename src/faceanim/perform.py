@@ -176,9 +176,9 @@ def look_weights(offsets: np.ndarray, outward: float) -> np.ndarray:
     """(..., 4) one eye's eyeLook In, Out, Up, Down from (..., 2) iris offsets less the eye's
     straight-ahead offset (eye widths, x the subject's left, y up): turned into angles on a sphere
     of :data:`IRIS_RADIUS` eye widths, then into weights by the angles a Live Link Face take records
-    at weight 1 (:data:`~faceanim.rig.arkit.LOOK_ANGLES`); ``outward`` +1 for the left eye (its
+    at weight 1 (:data:`~faceanim.standards.arkit.LOOK_ANGLES`); ``outward`` +1 for the left eye (its
     outward side is the subject's left), -1 for the right."""
-    from faceanim.rig.arkit import LOOK_ANGLES
+    from faceanim.standards.arkit import LOOK_ANGLES
 
     angle = np.arcsin(np.clip(np.asarray(offsets, dtype=np.float64) / IRIS_RADIUS, -1.0, 1.0))
     yaw, pitch = outward * angle[..., 0], angle[..., 1]
@@ -191,7 +191,7 @@ def eye_angles(looks: np.ndarray) -> np.ndarray:
     """(..., 6) the eyes' yaw, pitch, roll (radians; the left eye's, then the right's) of (..., 8)
     eyeLook curves (In, Out, Up, Down of the left eye, then the right's): yaw to the subject's left
     and pitch down positive, as the head's (:data:`~faceanim.drivers.video.tracking.POSE_NAMES`)."""
-    from faceanim.rig.arkit import LOOK_ANGLES
+    from faceanim.standards.arkit import LOOK_ANGLES
 
     w = np.asarray(looks, dtype=np.float64)
     out = np.zeros(w.shape[:-1] + (6,))
@@ -461,7 +461,7 @@ def arkit_matrix(db: MotionDatabase) -> np.ndarray:
     (ICT names; ARKit's curves that ICT splits in two take their halves' mean), the eyes' and
     brows' from the upper face's weights and the rest from the lower face's; the blinks and the
     gaze (:data:`EYE_CONTROLS`) are their own curves."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
+    from faceanim.standards.arkit import ARKIT_NAMES, ict_name
 
     n_l = db.n_bases
     col = {n: i for i, n in enumerate(db.curve_names)}
@@ -549,7 +549,7 @@ def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | 
         return write_arkit_csv(path, arkit_curves(perf, db), perf.fps, np.radians(perf.pose[:, :3]), eyes)
     if suffix in (".tsv", ".json"):
         from faceanim.drivers.cues import arkit_cues
-        from faceanim.io.arkit_csv import ARKIT_NAMES
+        from faceanim.standards.arkit import ARKIT_NAMES
         from faceanim.io.rhubarb import write_cues
 
         cues = arkit_cues(arkit_curves(perf, db), ARKIT_NAMES, perf.fps)
@@ -607,9 +607,10 @@ def write_arkit_gltf(path, face: Face, curves: np.ndarray, fps: float, rotations
     ``curves`` (F, 52) in Live Link Face order at ``fps``, the head's ``rotations`` (F, 4) on a node
     ``head`` turning about :func:`head_pivot`. Every made shape is a target (a take or performance
     that leaves one at 0 still gives a full ARKit rig); the eyeballs turn by the eyeLook targets."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES
+    from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.io.gltf import write_gltf
-    from faceanim.rig.arkit import apple_name, arkit_shapes
+    from faceanim.rig.arkit import arkit_shapes
+    from faceanim.standards.arkit import apple_name
 
     made = shapes if shapes is not None else arkit_shapes(face)[0]
     column = {apple_name(n): k for k, n in enumerate(ARKIT_NAMES)}
@@ -632,8 +633,10 @@ def write_take(path, take, face: Face | None = None, fps: float = 30.0, size: in
 
     The recorded head angles are taken as yaw, pitch, roll in radians with faceanim's signs (the
     shared take's are all zero: the signs are unchecked against a moving recording)."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
-    from faceanim.rig.arkit import apple_name, arkit_shapes
+    from faceanim.io.arkit_csv import write_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
+    from faceanim.rig.arkit import arkit_shapes
+    from faceanim.standards.arkit import apple_name
 
     path = Path(path)
     suffix = path.suffix.lower()

@@ -144,8 +144,9 @@ def arkit_from_stream(face: Face, rig: FapRig, stream: FapStream) -> tuple[np.nd
     once (``JawLeft`` and ``JawRight``) keeps only its net."""
     from scipy.optimize import lsq_linear
 
-    from faceanim.io.arkit_csv import ARKIT_NAMES
-    from faceanim.rig.arkit import apple_name, arkit_shapes
+    from faceanim.standards.arkit import ARKIT_NAMES
+    from faceanim.rig.arkit import arkit_shapes
+    from faceanim.standards.arkit import apple_name
 
     arkit = Rig.from_blendshapes(face.mesh, arkit_shapes(face, rig.eyes)[0])
     curves = rig.stream_curves(stream)

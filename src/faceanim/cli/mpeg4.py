@@ -141,8 +141,9 @@ def _say_arkit(args, face, phones, wav) -> tuple[list[Path], int, float]:
         curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),
                          0.0, 1.0)
     if suffix == ".csv":
-        from faceanim.io.arkit_csv import ARKIT_NAMES, write_arkit_csv
-        from faceanim.rig.arkit import apple_name
+        from faceanim.io.arkit_csv import write_arkit_csv
+        from faceanim.standards.arkit import ARKIT_NAMES
+        from faceanim.standards.arkit import apple_name
 
         column = {n: k for k, n in enumerate(names)}
         table = np.zeros((len(curves), len(ARKIT_NAMES)))
@@ -183,10 +184,10 @@ def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
     """``say`` onto the --face avatar's own ARKit-named targets: the same avatar with the speech as one
     more animation, the sound beside it (named in the scene's extras)."""
     from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
-    from faceanim.io.arkit_csv import ARKIT_NAMES
     from faceanim.io.gltf import sound_companion
+    from faceanim.standards.arkit import APPLE_NAMES
 
-    names = [n[0].lower() + n[1:] for n in ARKIT_NAMES]
+    names = list(APPLE_NAMES)
     curves = lipsync_curves(phones, names, args.fps)
     if args.expression:
         curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),

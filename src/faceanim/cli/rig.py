@@ -97,7 +97,8 @@ def register(sub) -> None:
                                    "control of the asked sets written as a named morph target on the mesh, vertex "
                                    "order kept. Sets: arkit (Apple ARKit blendshapes, eyeBlinkLeft ... ; Left/Right "
                                    "are the subject's sides), visemes (the 15 Oculus visemes viseme_sil ... "
-                                   "viseme_U), au (FACS action units with one-sided halves), emotions (joy ... "
+                                   "viseme_U), rpm (Ready Player Me's mouthOpen, mouthSmile, eyesClosed, eyesLookUp, "
+                                   "eyesLookDown), au (FACS action units with one-sided halves), emotions (joy ... "
                                    "disgust), fap (MPEG-4 FAPs by name). A .vrm also binds VRM 1.0's expression "
                                    "presets (happy ... neutral) to them. A whole avatar (a .glb/.vrm with a skin "
                                    "or several meshes) is rigged in place: its head (and eyes, teeth) found, the "
@@ -105,7 +106,7 @@ def register(sub) -> None:
     add_face(p)
     _axes(p)
     p.add_argument("--set", default="all", metavar="SETS",
-                   help=f"comma-separated sets to write: {','.join(RIG_SETS)} (default: all)")
+                   help=f"comma-separated sets to write: {','.join(RIG_SETS)} or all")
     p.add_argument("--compact", action="store_true",
                    help="quantised .glb (KHR_mesh_quantization): smaller, for delivery")
     p.add_argument("--head-mesh", metavar="NAME",

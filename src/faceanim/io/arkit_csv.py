@@ -8,8 +8,8 @@ pitch and roll. Columns are found by name, in any order; extra columns are ignor
 
 :func:`read_arkit_csv` checks the file (missing columns, non-numeric or non-finite cells, time
 going backwards, absurd sizes: one line naming the line and column) and returns the take on its
-own sample times; :meth:`ArkitTake.resample` puts it on a uniform frame rate, and
-:func:`ict_name` maps ARKit names to the ICT FaceKit shape names of the generic head.
+own sample times; :meth:`ArkitTake.resample` puts it on a uniform frame rate. The names, their orders and their
+ICT FaceKit counterparts are :mod:`faceanim.standards.arkit`'s.
 """
 
 from __future__ import annotations
@@ -24,21 +24,8 @@ import numpy as np
 from faceanim.errors import InputFileError, shown
 from faceanim.io.files import check_input_file
 from faceanim.limits import MAX_FRAMES
+from faceanim.standards.arkit import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES, ict_name
 
-# the 52 ARKit blendshapes, in Live Link Face's column order
-ARKIT_NAMES = (
-    "EyeBlinkLeft", "EyeLookDownLeft", "EyeLookInLeft", "EyeLookOutLeft", "EyeLookUpLeft", "EyeSquintLeft",
-    "EyeWideLeft", "EyeBlinkRight", "EyeLookDownRight", "EyeLookInRight", "EyeLookOutRight", "EyeLookUpRight",
-    "EyeSquintRight", "EyeWideRight", "JawForward", "JawRight", "JawLeft", "JawOpen", "MouthClose",
-    "MouthFunnel", "MouthPucker", "MouthRight", "MouthLeft", "MouthSmileLeft", "MouthSmileRight",
-    "MouthFrownLeft", "MouthFrownRight", "MouthDimpleLeft", "MouthDimpleRight", "MouthStretchLeft",
-    "MouthStretchRight", "MouthRollLower", "MouthRollUpper", "MouthShrugLower", "MouthShrugUpper",
-    "MouthPressLeft", "MouthPressRight", "MouthLowerDownLeft", "MouthLowerDownRight", "MouthUpperUpLeft",
-    "MouthUpperUpRight", "BrowDownLeft", "BrowDownRight", "BrowInnerUp", "BrowOuterUpLeft", "BrowOuterUpRight",
-    "CheekPuff", "CheekSquintLeft", "CheekSquintRight", "NoseSneerLeft", "NoseSneerRight", "TongueOut",
-)
-HEAD_NAMES = ("HeadYaw", "HeadPitch", "HeadRoll")
-EYE_NAMES = ("LeftEyeYaw", "LeftEyePitch", "LeftEyeRoll", "RightEyeYaw", "RightEyePitch", "RightEyeRoll")
 TIMECODE_RATE = 60.0  # the app's timecode frames per second
 MAX_BYTES = 512 * 2**20  # a take of this size is hours long: refuse before reading
 MAX_GAP = 10.0  # seconds between two samples: more is two recordings in one file
@@ -46,33 +33,6 @@ WEIGHT_RANGE = (-1.0, 2.0)  # blendshape weights beyond these are not a face's (
 MAX_ANGLE = 360.0  # |head or eye angle| (radians by ARKit's convention; degrees would stay within too)
 TIMECODE = re.compile(r"^(\d{1,2}):(\d{2}):(\d{2}):(\d{1,3}(?:\.\d+)?)$")
 PATH_SHOWN = 80
-
-
-def name_key(name: str) -> str:
-    """A blendshape name reduced for matching across spellings: ``eyeBlink_L``, ``EyeBlinkLeft``,
-    ``eye_blink_left``, ``eyeBlink.L`` -> ``eyeblinkleft`` (a trailing L/R after a separator, or a
-    capital L/R after a lower-case letter, is the side)."""
-    s = re.sub(r"(?:[._\s-]|(?<=[a-z]))L$", "Left", name.strip())
-    s = re.sub(r"(?:[._\s-]|(?<=[a-z]))R$", "Right", s)
-    return re.sub(r"[^a-z0-9]", "", s.lower())
-
-
-def ict_name(arkit: str) -> tuple[str, ...]:
-    """The ICT FaceKit shape(s) an ARKit curve drives: first letter lower-cased, a side Left/Right
-    -> _L/_R (JawLeft, MouthRight... are directions: jawLeft, mouthRight); BrowInnerUp and
-    CheekPuff drive both halves; TongueOut has none (empty)."""
-    if arkit == "TongueOut":
-        return ()
-    if arkit in ("BrowInnerUp", "CheekPuff"):
-        base = arkit[0].lower() + arkit[1:]
-        return (f"{base}_L", f"{base}_R")
-    name = arkit[0].lower() + arkit[1:]
-    if name in ("jawLeft", "jawRight", "mouthLeft", "mouthRight"):  # directions, not sides
-        return (name,)
-    for side, tag in (("Left", "_L"), ("Right", "_R")):
-        if name.endswith(side):
-            return (name[: -len(side)] + tag,)
-    return (name,)
 
 
 @dataclass

@@ -4,8 +4,9 @@ One datagram per frame, big-endian: a version byte (6), the device's id and the 
 (each an int32 byte count and UTF-8), the frame time (int32 frame number, float32 sub-frame, int32
 frame rate numerator and denominator), a byte with the number of values (61) and then 61 float32:
 the 52 ARKit blendshapes, the head's yaw, pitch and roll and each eye's yaw, pitch and roll
-(radians), in the order of Unreal's ``EARFaceBlendShape`` (:data:`PACKET_NAMES`; the app's CSV has
-another column order, :data:`faceanim.io.arkit_csv.ARKIT_NAMES`: values are matched by name).
+(radians), in the order of Unreal's ``EARFaceBlendShape``
+(:data:`faceanim.standards.arkit.LIVE_LINK_ORDER`; the app's CSV has another column order,
+:data:`~faceanim.standards.arkit.ARKIT_NAMES`: values are matched by name).
 
 :func:`encode_packet` builds a packet and :func:`decode_packet` reads one back (the tests' receiver,
 and anyone checking what a sender sent), refusing anything that is not a whole, finite packet.
@@ -20,30 +21,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from faceanim.errors import InputFileError
-from faceanim.io.arkit_csv import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
+from faceanim.standards.arkit import LIVE_LINK_ORDER
 
 VERSION = 6
 DEFAULT_PORT = 11111
 
 
-def _unreal_order() -> tuple[str, ...]:
-    """Unreal's ``EARFaceBlendShape`` order: the app's CSV columns with the jaw's and the mouth's
-    left and right the other way round, then the head's and the eyes' angles."""
-    names = list(ARKIT_NAMES)
-    for a, b in (("JawLeft", "JawRight"), ("MouthLeft", "MouthRight")):
-        i, j = names.index(a), names.index(b)
-        names[i], names[j] = names[j], names[i]
-    return tuple(names) + HEAD_NAMES + EYE_NAMES
-
-
-PACKET_NAMES = _unreal_order()  # the 52 blendshapes, then the head's and the eyes' angles
 MAX_TEXT = 256  # bytes of a device id or subject name (the app's are a UUID and a short name)
 
 
 @dataclass
 class LiveLinkFrame:
     """One packet: ``device`` id, ``subject`` name, ``frame`` number, ``subframe`` (0..1),
-    ``rate`` (numerator, denominator) and ``values`` {name: value} in :data:`PACKET_NAMES`."""
+    ``rate`` (numerator, denominator) and ``values`` {name: value} in :data:`~faceanim.standards.arkit.LIVE_LINK_ORDER`."""
 
     device: str
     subject: str
@@ -66,10 +56,10 @@ def encode_packet(values: dict[str, float], frame: int, fps: float, subject: str
     radians), ``frame`` the frame number at ``fps`` (sent as a rational: 30 -> 30/1, 29.97 ->
     30000/1001)."""
     rate = (int(round(fps)), 1) if abs(fps - round(fps)) < 1e-6 else (int(round(fps * 1001)), 1001)
-    row = np.array([float(values.get(n, 0.0)) for n in PACKET_NAMES], dtype=">f4")
+    row = np.array([float(values.get(n, 0.0)) for n in LIVE_LINK_ORDER], dtype=">f4")
     return (struct.pack(">B", VERSION) + _text(device, "device id") + _text(subject, "subject name")
             + struct.pack(">ifii", int(frame) & 0x7FFFFFFF, float(subframe), *rate)
-            + struct.pack(">B", len(PACKET_NAMES)) + row.tobytes())
+            + struct.pack(">B", len(LIVE_LINK_ORDER)) + row.tobytes())
 
 
 def decode_packet(data: bytes) -> LiveLinkFrame:
@@ -99,12 +89,12 @@ def decode_packet(data: bytes) -> LiveLinkFrame:
             raise InputFileError(f"a Live Link packet's {what} is not UTF-8") from None
     frame, subframe, num, den = struct.unpack(">ifii", take(16))
     (count,) = struct.unpack(">B", take(1))
-    if count > len(PACKET_NAMES):
-        raise InputFileError(f"a Live Link packet with {count} values; at most {len(PACKET_NAMES)}")
+    if count > len(LIVE_LINK_ORDER):
+        raise InputFileError(f"a Live Link packet with {count} values; at most {len(LIVE_LINK_ORDER)}")
     row = np.frombuffer(take(4 * count), dtype=">f4").astype(np.float64)
     if pos != len(data):
         raise InputFileError("a Live Link packet has bytes after its last value")
     if not (np.all(np.isfinite(row)) and math.isfinite(subframe)):
         raise InputFileError("a Live Link packet carries a value that is not a finite number")
     return LiveLinkFrame(texts[0], texts[1], frame, subframe, (num, den),
-                         {n: float(v) for n, v in zip(PACKET_NAMES, row)})
+                         {n: float(v) for n, v in zip(LIVE_LINK_ORDER, row)})

@@ -52,15 +52,11 @@ from faceanim.errors import FaceAnimError, shown
 from faceanim.face.mesh import Mesh
 from faceanim.io.files import check_output_path
 from faceanim.io.gltf import build_gltf, checked_blendshapes, save_glb
+from faceanim.standards.vrm import BLINKS, EMOTIONS, LICENSE_FIELDS, LICENSE_FLAGS, LOOKS, PRESETS
 
 VRM_EXTENSION = "VRMC_vrm"
 LICENSE_URL = "https://vrm.dev/licenses/1.0/"
 
-EMOTIONS = ("happy", "angry", "sad", "relaxed", "surprised")
-VISEMES = ("aa", "ih", "ou", "ee", "oh")
-BLINKS = ("blink", "blinkLeft", "blinkRight")
-LOOKS = ("lookUp", "lookDown", "lookLeft", "lookRight")
-PRESETS = EMOTIONS + VISEMES + BLINKS + LOOKS + ("neutral",)
 
 # the humanoid's bones: name, parent, position in model space (metres, +Y up, facing +Z, the
 # avatar's left at +X); an adult of about 1.7 m in the T pose, the head bone at the top of the neck
@@ -92,14 +88,8 @@ REQUIRED_BONES = ("hips", "spine", "head", "leftUpperLeg", "leftLowerLeg", "left
 # a head in metres measures between these (bounding-box diagonal): outside, the scale is wrong
 HEAD_SIZE_RANGE = (0.02, 3.0)
 
-_ENUMS = {
-    "avatarPermission": ("onlyAuthor", "onlySeparatelyLicensedPerson", "everyone"),
-    "commercialUsage": ("personalNonProfit", "personalProfit", "corporation"),
-    "creditNotation": ("required", "unnecessary"),
-    "modification": ("prohibited", "allowModification", "allowModificationRedistribution"),
-}
-_FLAGS = ("allowExcessivelyViolentUsage", "allowExcessivelySexualUsage", "allowPoliticalOrReligiousUsage",
-          "allowAntisocialOrHateUsage", "allowRedistribution")
+_ENUMS = LICENSE_FIELDS
+_FLAGS = LICENSE_FLAGS
 _TEXTS = ("name", "version", "copyrightInformation", "contactInformation", "thirdPartyLicenses", "otherLicenseUrl")
 _LISTS = ("authors", "references")
 # the most restrictive settings of the VRM Public License 1.0 (also the spec's defaults), written out

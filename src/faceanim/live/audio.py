@@ -19,11 +19,11 @@ import numpy as np
 from faceanim.drivers.speech.phonemes import SAMPLE_RATE
 from faceanim.drivers.speech.stream import LiveLipSync
 from faceanim.errors import FaceAnimError
-from faceanim.io.arkit_csv import ARKIT_NAMES
+from faceanim.standards.arkit import APPLE_NAMES, ARKIT_NAMES
 from faceanim.live.performer import LiveSample
 from faceanim.live.sources import Frame, Source
 
-APPLE = [n[0].lower() + n[1:] for n in ARKIT_NAMES]
+APPLE = list(APPLE_NAMES)
 MOUTH = np.array([n.startswith(("Jaw", "Mouth")) for n in ARKIT_NAMES])  # the curves the sound drives
 CLOSE = ARKIT_NAMES.index("MouthClose")
 CHUNK = SAMPLE_RATE // 50  # 20 ms of audio per step

@@ -65,7 +65,7 @@ SPIKE = 3  # frames of the causal median on the gaze (the iris trembles); the bl
 class LiveSample:
     """One frame out of :class:`LivePerformer`: ``time`` (seconds of the source), ``tracked``,
     ``weights`` (2L + 10,) as :attr:`faceanim.perform.Performance.weights`, ``arkit`` (52,) in
-    :data:`~faceanim.io.arkit_csv.ARKIT_NAMES` order, ``head`` (3,) yaw, pitch, roll and ``eyes``
+    :data:`~faceanim.standards.arkit.ARKIT_NAMES` order, ``head`` (3,) yaw, pitch, roll and ``eyes``
     (6,) the eyes' yaw, pitch, roll (radians, :func:`~faceanim.perform.eye_angles`); ``capture``:
     when its frame was captured (seconds since the epoch; set by the pipeline)."""
 

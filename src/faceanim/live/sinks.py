@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.errors import FaceAnimError, shown
-from faceanim.io.arkit_csv import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
+from faceanim.standards.arkit import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
 from faceanim.live.performer import LiveSample
 
 SCHEMES = ("vmc", "livelink", "csv", "viewer")

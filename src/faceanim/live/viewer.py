@@ -22,17 +22,13 @@ import time
 from pathlib import Path
 
 from faceanim.errors import FaceAnimError
-from faceanim.io.arkit_csv import ARKIT_NAMES
+from faceanim.standards.arkit import APPLE_NAMES
 from faceanim.live.performer import LiveSample
 from faceanim.live.sinks import Sink
 
 MAX_CLIENTS = 16
 MAX_MESSAGE = 4096  # bytes a page may send (it sends nothing; anything is read and dropped)
 
-
-def apple_names() -> list[str]:
-    """ARKit's names as Apple spells them (``jawOpen``), in Live Link order."""
-    return [n[0].lower() + n[1:] for n in ARKIT_NAMES]
 
 
 def default_avatar(folder: Path) -> Path:
@@ -65,7 +61,7 @@ VRM_PRESETS = {"eyeBlinkLeft": "blinkLeft", "eyeBlinkRight": "blinkRight", "jawO
 def driven_curves(doc: dict) -> list[str]:
     """The ARKit curves (Apple's names) a model's page can drive: morph targets or VRM expressions
     named by ARKit in any spelling, or a VRM's blink and aa presets (as ``viewer.js`` matches)."""
-    from faceanim.io.arkit_csv import name_key
+    from faceanim.standards.arkit import name_key
 
     names = []
     for mesh in doc.get("meshes") or []:
@@ -80,7 +76,7 @@ def driven_curves(doc: dict) -> list[str]:
     vrm0 = ((ext.get("VRM") or {}).get("blendShapeMaster") or {}).get("blendShapeGroups") or []
     names += [g.get("presetName") or g.get("name") for g in vrm0 if isinstance(g, dict)]
     keys = {name_key(n) for n in names if isinstance(n, str)}
-    return [a for a in apple_names() if name_key(a) in keys or name_key(VRM_PRESETS.get(a, a)) in keys]
+    return [a for a in APPLE_NAMES if name_key(a) in keys or name_key(VRM_PRESETS.get(a, a)) in keys]
 
 
 class ViewerSink(Sink):
@@ -114,7 +110,7 @@ class ViewerSink(Sink):
             raise
         ws_port = self.ws.socket.getsockname()[1]
         self.http.viewer = Viewer(model)
-        self.http.viewer.live = {"url": f"ws://{HOST}:{ws_port}/", "names": apple_names()}
+        self.http.viewer.live = {"url": f"ws://{HOST}:{ws_port}/", "names": list(APPLE_NAMES)}
         self.url = self.http.url
         self.label = f"viewer {self.url}"
         port = self.http.server_address[1]

@@ -13,7 +13,7 @@ sum is the ARKit shape.
 Each displacement is rebuilt on the face's own surface from the patterns of ICT's artist-made
 shapes (learned, not copied: a face that is not ICT's gets its own). :func:`arkit_shapes` adds
 what ICT's shapes lack: the ``eyeLook*`` shapes also turn the eyeballs, by the angles a real Live
-Link Face take records at weight 1 (:data:`LOOK_ANGLES`). ``faceanim rig`` and ``faceanim arkit
+Link Face take records at weight 1 (:data:`~faceanim.standards.arkit.LOOK_ANGLES`). ``faceanim rig`` and ``faceanim arkit
 play`` both use it.
 """
 
@@ -27,18 +27,13 @@ from faceanim.face.face import Face
 from faceanim.face.generic_head import generic_head
 from faceanim.rig.performance import retarget
 from faceanim.rig.rig import Rig
-
-
-def apple_name(live_link: str) -> str:
-    """Apple's name of an ARKit blendshape from Live Link Face's column name (``EyeBlinkLeft`` ->
-    ``eyeBlinkLeft``)."""
-    return live_link[0].lower() + live_link[1:]
+from faceanim.standards.arkit import LOOK_ANGLES, apple_name
 
 
 def arkit_rig(face: Face) -> tuple[Rig, list[str]]:
     """The face's ARKit rig: one control per ARKit blendshape the generic head has (all 52; Apple's
     names, in Live Link Face's column order), and the names it lacks (none with the shipped head)."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
+    from faceanim.standards.arkit import ARKIT_NAMES, ict_name
 
     head = generic_head()
     names = list(head.shape_names)
@@ -54,9 +49,6 @@ def arkit_rig(face: Face) -> tuple[Rig, list[str]]:
     return Rig.from_blendshapes(face.mesh, shapes), missing
 
 
-# radians an eyeball turns at look weight 1: the Live Link Face take in ../shared/data/arkit-curves,
-# its eye yaw/pitch regressed on the look curves (r = 0.999 yaw, 0.996 pitch; both eyes agree to 0.01)
-LOOK_ANGLES = {"Out": 0.58, "In": 0.63, "Up": 0.45, "Down": 0.62}
 
 
 def _turn(points: np.ndarray, centre: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
@@ -293,7 +285,7 @@ def blink_shapes(face: Face, eyes: dict | None = None) -> dict[str, np.ndarray]:
 def look_shapes(face: Face, eyes: dict | None = None) -> dict[str, np.ndarray]:
     """The eight ``eyeLook*`` shapes alone, as :func:`arkit_shapes` makes them (ICT's carried,
     the lids following, plus the eyeballs turned), for drivers that need only the gaze."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
+    from faceanim.standards.arkit import ARKIT_NAMES, ict_name
 
     columns = [c for c in ARKIT_NAMES if c.startswith("EyeLook")]
     names = [n for c in columns for n in ict_name(c)]

@@ -20,12 +20,13 @@ import re
 from functools import lru_cache
 
 from faceanim.autorig import EMOTIONS
-from faceanim.io.vrm import EMOTIONS as VRM_EMOTION_PRESETS
-from faceanim.io.vrm import VISEMES as VRM_VISEMES
+from faceanim.standards.visemes import RPM_EXTRAS
+from faceanim.standards.vrm import EMOTIONS as VRM_EMOTION_PRESETS
+from faceanim.standards.vrm import VISEMES as VRM_VISEMES
 
-SET_ORDER = ("arkit", "visemes", "au", "emotions", "fap", "other")
-SET_LABELS = {"arkit": "ARKit", "visemes": "Visemes", "au": "Action units (FACS)", "emotions": "Emotions",
-              "fap": "MPEG-4 FAPs", "other": "Other"}
+SET_ORDER = ("arkit", "visemes", "rpm", "au", "emotions", "fap", "other")
+SET_LABELS = {"arkit": "ARKit", "visemes": "Visemes", "rpm": "Ready Player Me", "au": "Action units (FACS)",
+              "emotions": "Emotions", "fap": "MPEG-4 FAPs", "other": "Other"}
 VRM_EMOTIONS = VRM_EMOTION_PRESETS + ("neutral",)
 _AU = re.compile(r"AU\d+(_L|_R)?")
 MAX_NAME = 200  # characters of a target name shown; longer names are cut
@@ -35,7 +36,7 @@ MAX_NAME = 200  # characters of a target name shown; longer names are cut
 def arkit_names() -> frozenset[str]:
     """Every spelling of an ARKit blendshape name, lower-cased: Apple's (``eyeblinkleft``) and the
     ICT FaceKit's (``eyeblink_l``)."""
-    from faceanim.io.arkit_csv import ARKIT_NAMES, ict_name
+    from faceanim.standards.arkit import ARKIT_NAMES, ict_name
 
     names = set()
     for column in ARKIT_NAMES:
@@ -59,6 +60,8 @@ def set_of(name: str) -> str:
         return "arkit"
     if low.startswith("viseme_") or low in VRM_VISEMES:
         return "visemes"
+    if name in RPM_EXTRAS:
+        return "rpm"
     if _AU.fullmatch(name):
         return "au"
     emotion = low[5:] if low.startswith("facs_") else low
