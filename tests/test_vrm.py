@@ -376,3 +376,140 @@ def test_the_ict_head_in_centimetres(tmp_path):
         assert got["warnings"] == [] and got["meshes"][0]["textured"] is False
         for name, b in binds.items():
             assert {names[int(i)]: w for i, w in got["effects"][name][0].items()} == pytest.approx(b)
+
+
+# ------------------------------------------------------------------------------------- VRM 0.x
+
+
+def _three_vrm(path):
+    if shutil.which("node") is None or not (MODULES / "@pixiv" / "three-vrm").exists() \
+            or not (MODULES / "three").exists():
+        pytest.skip("node or three/@pixiv/three-vrm are missing in tools/ (scripts/setup.sh installs them)")
+    out = subprocess.run(["node", str(ROOT / "tools" / "check_vrm.mjs"), str(path)],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+@pytest.fixture(scope="module")
+def avatar0(avatar, tmp_path_factory):
+    """The same head written as VRM 0.x, with a thumbnail and an open licence."""
+    import io
+
+    from PIL import Image
+
+    _, face, shapes, pivot, eyes = avatar
+    png = io.BytesIO()
+    Image.fromarray(np.full((64, 64, 3), 200, dtype=np.uint8)).save(png, format="PNG")
+    path = tmp_path_factory.mktemp("vrm0") / "avatar0.vrm"
+    write_vrm(path, face.mesh, shapes, BINDS, head_pivot=pivot, rotation=face.frame.rotation, eyes=eyes,
+              meta={"name": "Default head", "authors": ["faceanim tests"], "avatarPermission": "everyone",
+                    "commercialUsage": "corporation", "modification": "allowModificationRedistribution",
+                    "allowRedistribution": True, "creditNotation": "required"},
+              custom={"jawOpen": {"jawOpen": 1.0}}, version=0, thumbnail=png.getvalue())
+    return path, png.getvalue()
+
+
+def test_vrm0_extension_by_hand(avatar0):
+    path, png = avatar0
+    gltf = _doc(path)
+    assert gltf.extensionsUsed == ["VRM"] and "VRMC_vrm" not in (gltf.extensions or {})
+    ext = gltf.extensions["VRM"]
+    assert ext["specVersion"] == "0.0"
+    meta = ext["meta"]
+    assert meta["title"] == "Default head" and meta["author"] == "faceanim tests"
+    assert meta["allowedUserName"] == "Everyone" and meta["commercialUssageName"] == "Allow"
+    assert meta["licenseName"] == "CC_BY" and meta["violentUssageName"] == "Disallow"
+    image = gltf.images[gltf.textures[meta["texture"]].source]
+    view = gltf.bufferViews[image.bufferView]
+    blob = gltf.binary_blob()
+    assert blob[view.byteOffset:view.byteOffset + view.byteLength] == png  # the thumbnail, as given
+    assert {b["bone"] for b in ext["humanoid"]["humanBones"]} >= set(REQUIRED_BONES)
+    groups = {g["name"]: g for g in ext["blendShapeMaster"]["blendShapeGroups"]}
+    assert groups["A"]["presetName"] == "a" and groups["Blink_L"]["presetName"] == "blink_l"
+    assert groups["Joy"]["presetName"] == "joy" and groups["Surprised"]["presetName"] == "unknown"
+    assert groups["JawOpen"]["presetName"] == "unknown"  # a custom expression: perfect-sync spelling
+    names = gltf.meshes[0].extras["targetNames"]
+    assert {names[b["index"]]: b["weight"] for b in groups["A"]["binds"]} == pytest.approx({"jawOpen": 70.0})
+    assert ext["firstPerson"]["meshAnnotations"] == [{"mesh": 0, "firstPersonFlag": "ThirdPersonOnly"}]
+    # facing -Z: the nose tip (MediaPipe 1) in front of the head bone is at negative z
+    v = accessor(gltf, gltf.meshes[0].primitives[0].attributes.POSITION)
+    assert v[1, 2] < -0.05
+
+
+def test_three_vrm_reads_vrm0_as_it_reads_the_same_avatar_in_vrm1(avatar, avatar0):
+    """pixiv's three-vrm, a 0.x consumer as well: the 0.x file (turned to face +Z as its users do,
+    VRMUtils.rotateVRM0) gives the 1.0 file's expressions (0.x's preset names mapped back), gaze,
+    mesh box, head and eye offset (mirrored: 0.x faces the other way), and its licence and
+    thumbnail."""
+    one, zero = _three_vrm(avatar[0]), _three_vrm(avatar0[0])
+    assert zero["vrm"] and zero["warnings"] == [] and zero["meta"]["metaVersion"] == "0"
+    assert zero["meta"]["licenseName"] == "CC_BY" and zero["meta"]["allowedUserName"] == "Everyone"
+    for name, effect in one["effects"].items():
+        key = "Surprised" if name == "surprised" else name
+        assert [set(e) for e in zero["effects"][key]] == [set(e) for e in effect], name
+        for a, b in zip(zero["effects"][key], effect):
+            assert a == pytest.approx(b, abs=1e-9), name  # 0.x's weights are hundredths
+    assert zero["effects"]["JawOpen"] != [{}]
+    for way in ("left", "up"):
+        assert zero["gaze"][way] == pytest.approx(one["gaze"][way], abs=1e-6)
+    for end in ("min", "max"):
+        assert zero["meshBox"][end] == pytest.approx(one["meshBox"][end], abs=1e-5)
+    assert zero["headWorld"] == one["headWorld"]
+    x, y, z = one["lookAt"]["offsetFromHeadBone"]
+    assert zero["lookAt"]["offsetFromHeadBone"] == pytest.approx([-x, y, -z], abs=1e-6)
+    assert zero["firstPerson"] == one["firstPerson"]
+
+
+def _run(argv) -> int:
+    from faceanim.cli import main
+
+    try:
+        return main(argv)
+    except SystemExit as exc:  # argparse's refusals
+        return exc.code
+
+
+def test_rig_writes_vrm0_with_a_licence_and_refuses_bad_ones(tmp_path, capsys):
+    main = _run
+
+    out = tmp_path / "a.vrm"
+    assert main(["rig", "-o", str(out), "--set", "arkit", "--vrm", "0", "--license", "cc0"]) == 0
+    ext = _doc(out).extensions["VRM"]
+    assert ext["meta"]["licenseName"] == "CC0"
+    groups = {g["name"] for g in ext["blendShapeMaster"]["blendShapeGroups"]}
+    assert {"Blink", "Blink_L", "LookUp", "EyeBlinkLeft", "TongueOut"} <= groups
+    from PIL import Image
+
+    gltf = _doc(out)
+    view = gltf.bufferViews[gltf.images[gltf.textures[ext["meta"]["texture"]].source].bufferView]
+    import io
+
+    thumb = Image.open(io.BytesIO(gltf.binary_blob()[view.byteOffset:view.byteOffset + view.byteLength]))
+    assert thumb.size == (512, 512) and np.asarray(thumb).std() > 10  # a rendered face, not a blank
+    for bad, phrase in ((["--license", "avatarPermission=all"], "avatarPermission takes"),
+                        (["--license", "colour=red"], "is not a licence"), (["--vrm", "2"], "invalid choice")):
+        assert main(["rig", "-o", str(tmp_path / "b.vrm"), "--set", "arkit", *bad]) == 2
+        assert phrase in capsys.readouterr().err
+    assert main(["rig", "-o", str(tmp_path / "c.glb"), "--vrm", "0"]) == 2
+    assert "for a .vrm output" in capsys.readouterr().err
+    assert not any((tmp_path / n).exists() for n in ("b.vrm", "c.glb"))
+    one = tmp_path / "one.vrm"
+    assert main(["rig", "-o", str(one), "--set", "arkit", "--license",
+                 "avatarPermission=everyone,allowRedistribution=true"]) == 0
+    meta = _doc(one).extensions["VRMC_vrm"]["meta"]
+    assert meta["avatarPermission"] == "everyone" and meta["allowRedistribution"] is True
+    assert meta["commercialUsage"] == "personalNonProfit" and "thumbnailImage" in meta
+
+
+def test_vrm0_passes_the_khronos_validator_but_for_its_extension_name(avatar0):
+    """0 errors; the one warning is the name VRM 0.x's extension has had since 2018 ("VRM", not
+    PREFIX_name), which every 0.x file carries."""
+    if shutil.which("node") is None or not (MODULES / "gltf-validator").exists():
+        pytest.skip("node or the gltf-validator npm package is missing (scripts/setup.sh installs it)")
+    out = subprocess.run(["node", str(ROOT / "tools" / "validate_gltf.js"), str(avatar0[0])],
+                         capture_output=True, text=True, check=True)
+    report = json.loads(out.stdout)
+    assert report["numErrors"] == 0 and report["numWarnings"] == 1
+    assert [m for m in report["messages"] if m.startswith("1 ")] == [
+        "1 INVALID_EXTENSION_NAME_FORMAT /extensionsUsed/0 Extension name has invalid format."]

@@ -1,4 +1,4 @@
-// Load a .vrm with three.js's GLTFLoader and pixiv's three-vrm (a real VRM 1.0 consumer), in Node,
+// Load a .vrm with three.js's GLTFLoader and pixiv's three-vrm (a real VRM 1.0 and 0.x consumer), in Node,
 // and print what it made of the file as JSON: meta, humanoid bones, each expression's effect on
 // the morph targets, the gaze, the first-person annotations and where the head ends up.
 // usage: node tools/check_vrm.mjs FILE.vrm
@@ -9,7 +9,7 @@
 import fs from "fs";
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
-import { VRMLoaderPlugin } from "@pixiv/three-vrm";
+import { VRMLoaderPlugin, VRMUtils } from "@pixiv/three-vrm";
 
 class UndecodedTextures {
   constructor(parser) {
@@ -48,6 +48,7 @@ loader.parse(data, "", (gltf) => {
     console.log(JSON.stringify({ vrm: false, warnings }));
     return;
   }
+  VRMUtils.rotateVRM0(vrm); // a VRM 0.x avatar faces -Z: turned to face +Z as three-vrm's users do
   vrm.scene.updateMatrixWorld(true);
   const meshes = [];
   vrm.scene.traverse((o) => { if (o.isMesh) meshes.push(o); });
@@ -67,19 +68,20 @@ loader.parse(data, "", (gltf) => {
 
   // gaze: a point 1 m ahead of the head and 1 m to the avatar's left (+X), then as high above it
   const gaze = {};
+  const world = new THREE.Object3D();
   const head = vrm.humanoid.getRawBoneNode("head");
   const headWorld = head.getWorldPosition(new THREE.Vector3());
   if (vrm.lookAt) {
     for (const [label, offset] of [["left", [1, 0, 1]], ["up", [0, 1, 1]]]) {
       const target = new THREE.Object3D();
       target.position.copy(headWorld).add(new THREE.Vector3(...offset));
-      vrm.scene.add(target);
+      world.add(target); // world coordinates (vrm.scene may be turned: rotateVRM0)
       target.updateMatrixWorld(true);
       vrm.lookAt.target = target;
       vrm.update(1 / 30);
       gaze[label] = Object.fromEntries(["lookLeft", "lookRight", "lookUp", "lookDown"]
         .filter((n) => em.getExpression(n)).map((n) => [n, em.getValue(n)]));
-      vrm.scene.remove(target);
+      world.remove(target);
     }
     vrm.lookAt.target = null;
   }

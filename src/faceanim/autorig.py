@@ -226,12 +226,32 @@ def vrm_expressions(auto: AutoRig) -> tuple[dict[str, dict[str, float]], dict[st
     return out, skipped
 
 
-def write_rigged(path, auto: AutoRig, compact: bool = False, meta: dict | None = None) -> tuple[Path, dict]:
+THUMBNAIL_SIZE = 512  # pixels per side of a VRM's thumbnail
+
+
+def thumbnail_png(face: Face, size: int = THUMBNAIL_SIZE) -> bytes:
+    """The face rendered from the front, as PNG bytes (a VRM's thumbnail)."""
+    import io
+
+    from PIL import Image
+
+    from faceanim.render import OffscreenRenderer
+
+    with OffscreenRenderer(face.mesh, size=(size, size), **face.view(yaw=0.0, pitch=0.0)) as r:
+        image = r.render(face.mesh.vertices)
+    out = io.BytesIO()
+    Image.fromarray(image).save(out, format="PNG")
+    return out.getvalue()
+
+
+def write_rigged(path, auto: AutoRig, compact: bool = False, meta: dict | None = None,
+                 vrm_version: int = 1) -> tuple[Path, dict]:
     """The rig as a file by the suffix of ``path``: ``.glb`` (every shape a morph target, the sets
-    in the scene's ``extras.morph_sets``; ``compact``: quantised) or ``.vrm`` (VRM 1.0: the presets
-    of :func:`vrm_expressions`, each ARKit shape also a custom expression by Apple's name for apps
-    that drive them, the gaze's range maps reaching a look shape's full weight at its eye angle,
-    ``meta`` over the restrictive defaults). Returns (the path, the VRM presets left out with why)."""
+    in the scene's ``extras.morph_sets``; ``compact``: quantised) or ``.vrm`` (VRM 1.0, or 0.x with
+    ``vrm_version`` 0: the presets of :func:`vrm_expressions`, each ARKit shape also a custom
+    expression by its name for apps that drive them ("Perfect Sync"), the gaze's range maps reaching
+    a look shape's full weight at its eye angle, ``meta`` over the restrictive defaults, a front
+    render as the thumbnail). Returns (the path, the VRM presets left out with why)."""
     from faceanim.io.gltf import write_gltf
 
     face = auto.face
@@ -250,5 +270,5 @@ def write_rigged(path, auto: AutoRig, compact: bool = False, meta: dict | None =
     written = write_vrm(path, face.mesh, auto.shapes, expressions, head_pivot=head_pivot(face),
                         rotation=face.frame.rotation, scale=metres_per_unit(face),
                         eyes=0.5 * (face.landmarks[468] + face.landmarks[473]), meta=meta, look_at=look_at,
-                        custom=custom, extras=extras)
+                        custom=custom, extras=extras, version=vrm_version, thumbnail=thumbnail_png(face))
     return written, left_out

@@ -3,6 +3,7 @@ target; :mod:`faceanim.autorig` does the work)."""
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -14,8 +15,6 @@ VRM_TEXT_LIMIT = 200  # characters of a VRM meta field given on the command line
 
 
 def _meta_text(flag: str):
-    import argparse
-
     def parse(text: str) -> str:
         if not text.strip() or len(text) > VRM_TEXT_LIMIT or not text.isprintable():
             raise argparse.ArgumentTypeError(f"{flag} takes 1 to {VRM_TEXT_LIMIT} printable characters")
@@ -44,6 +43,9 @@ def _cmd_avatar(args, sets, source: Path, out: Path) -> None:
                            "detected (choose the head with --head-mesh NAME)")
     if args.compact:
         raise CommandError("--compact is for a single face mesh; an avatar keeps its own accessors")
+    if args.vrm is not None or args.license is not None:
+        raise CommandError("--vrm and --license are for a face mesh rigged into a new avatar; a whole avatar keeps "
+                           "its own VRM version and licence")
     check_outputs(args.output)
     forward = None if args.forward == "+z" and args.up == "+y" else args.forward
     done = rig_avatar(source, out, sets, head_mesh=args.head_mesh, replace=args.replace, forward=forward, up=args.up)
@@ -55,6 +57,36 @@ def _cmd_avatar(args, sets, source: Path, out: Path) -> None:
               + (" ..." if len(done.kept) > 12 else ""), file=sys.stderr)
     _report_skipped(done.skipped)
     report([out])
+
+
+def _licence(text: str) -> dict:
+    """``--license``: a preset (:data:`~faceanim.standards.vrm.LICENSE_PRESETS`) or KEY=VALUE,... of
+    VRM 1.0 meta fields (their values checked by the writer's own meta check)."""
+    from faceanim.standards.vrm import LICENSE_FIELDS, LICENSE_FLAGS, LICENSE_PRESETS
+
+    text = str(text).strip()
+    if text.lower() in LICENSE_PRESETS:
+        return dict(LICENSE_PRESETS[text.lower()])
+    out: dict = {}
+    for item in (p.strip() for p in text.split(",") if p.strip()):
+        key, eq, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if not eq or key not in (*LICENSE_FIELDS, *LICENSE_FLAGS):
+            raise argparse.ArgumentTypeError(
+                f"'{shown(item, 40)}' is not a licence; give {', '.join(LICENSE_PRESETS)} or KEY=VALUE with KEY one of "
+                f"{', '.join((*LICENSE_FIELDS, *LICENSE_FLAGS))}")
+        if key in LICENSE_FLAGS:
+            if value.lower() not in ("true", "false"):
+                raise argparse.ArgumentTypeError(f"--license {key} takes true or false, not '{shown(value, 20)}'")
+            out[key] = value.lower() == "true"
+        elif value not in LICENSE_FIELDS[key]:
+            raise argparse.ArgumentTypeError(f"--license {key} takes {', '.join(LICENSE_FIELDS[key])}, "
+                                             f"not '{shown(value, 40)}'")
+        else:
+            out[key] = value
+    if not out:
+        raise argparse.ArgumentTypeError(f"--license is empty; give {', '.join(LICENSE_PRESETS)} or KEY=VALUE,...")
+    return out
 
 
 def _cmd_rig(args) -> None:
@@ -73,14 +105,18 @@ def _cmd_rig(args) -> None:
         return _cmd_avatar(args, sets, Path(source), out)
     if args.head_mesh or args.replace:
         raise CommandError("--head-mesh and --replace are for a whole avatar (.glb/.vrm with a skin or several meshes)")
+    if (args.vrm is not None or args.license is not None) and out.suffix.lower() != ".vrm":
+        raise CommandError("--vrm and --license are for a .vrm output; give -o NAME.vrm or leave them out")
     if args.compact and out.suffix.lower() == ".vrm":
         raise CommandError("--compact writes KHR_mesh_quantization, which VRM tools do not all read; drop it for a .vrm")
     check_outputs(args.output)
     face = load_face(args)
     auto = auto_rig(face, sets)
     counts = ", ".join(f"{name} {len(names)}" for name, names in auto.sets.items())
-    meta = {"name": args.title or shown(face.name, VRM_TEXT_LIMIT), "authors": [args.author]}
-    written, left_out = write_rigged(out, auto, compact=args.compact, meta=meta)
+    meta = {"name": args.title or shown(face.name, VRM_TEXT_LIMIT), "authors": [args.author],
+            **(args.license or {})}
+    written, left_out = write_rigged(out, auto, compact=args.compact, meta=meta,
+                                     vrm_version=1 if args.vrm is None else args.vrm)
     if left_out:
         print("VRM presets left out: " + "; ".join(f"{p} ({why})" for p, why in left_out.items()), file=sys.stderr)
     print(f"{len(auto.shapes)} morph targets ({counts})")
@@ -114,6 +150,13 @@ def register(sub) -> None:
     p.add_argument("--replace", action="store_true",
                    help="a whole avatar: replace its own targets (and VRM expressions) named as faceanim's "
                         "(default: keep them)")
+    p.add_argument("--vrm", type=int, choices=(0, 1), metavar="0|1",
+                   help="the VRM version of a .vrm: 1 (VRM 1.0) or 0 (VRM 0.x, for VSeeFace, VMagicMirror and "
+                        "other 0.x apps) (default: 1)")
+    p.add_argument("--license", type=_licence, metavar="LICENCE",
+                   help="a .vrm's licence: private (only the author, no redistribution), cc0, cc-by, or VRM 1.0 "
+                        "meta fields as KEY=VALUE,... (avatarPermission, commercialUsage, creditNotation, "
+                        "modification, allowRedistribution, allowExcessivelyViolentUsage, ...) (default: private)")
     p.add_argument("--title", type=_meta_text("--title"), help="the avatar's name in a .vrm (default: the mesh's)")
     p.add_argument("--author", type=_meta_text("--author"), default="unknown",
                    help="the author written in a .vrm's meta (default: unknown)")

@@ -1,4 +1,4 @@
-"""VRM 1.0 export: a head as a VRM avatar (binary glTF with the ``VRMC_vrm`` extension).
+"""VRM export: a head as a VRM avatar, VRM 1.0 (``VRMC_vrm``) or 0.x (the ``VRM`` extension).
 
 :func:`write_vrm` writes the mesh, its morph targets, UV seams and texture exactly as
 :func:`faceanim.io.gltf.write_gltf` does (one shared writer, :func:`~faceanim.io.gltf.build_gltf`),
@@ -34,7 +34,20 @@ and adds what a VRM 1.0 consumer (three-vrm, UniVRM, VTuber applications) needs:
 - **custom expressions** (``custom``): any others by name, e.g. one per ARKit blendshape for apps
   that drive them by Apple's names ("Perfect Sync").
 
-Animations are not written (VRM 1.0 leaves them unused), nor spring bones or MToon materials: the
+- **thumbnail**: a PNG (a front render) as the meta's thumbnail image.
+
+**VRM 0.x** (``version=0``; VSeeFace, VMagicMirror and many VTuber apps read only 0.x): the same
+data in 0.x's form: the avatar faces -Z (0.x's convention: vertices and bones turned half a turn
+about +Y), the ``VRM`` extension with ``specVersion`` 0.0; ``meta`` with 0.x's fields (title,
+author, ``allowedUserName``, ``commercialUssageName``, ``licenseName`` ... from the 1.0 fields:
+:func:`vrm0_meta`); ``humanoid.humanBones`` as a list; ``firstPerson`` with the head bone, the eye
+offset (in 0.x's Unity axes), the mesh ``ThirdPersonOnly`` and BlendShape gaze curves;
+``blendShapeMaster.blendShapeGroups`` with 0.x's preset names (``A``, ``Blink_L``, ``Joy`` ...;
+:data:`~faceanim.standards.vrm.VRM0_FROM_1`) and weights in 0..100, each custom expression (and
+1.0's ``surprised``) a group of preset ``unknown``; ``materialProperties`` keeping the glTF
+material (``VRM_USE_GLTFSHADER``).
+
+Animations are not written (VRM leaves them unused), nor spring bones or MToon materials: the
 material is the same PBR skin as the glTF.
 """
 
@@ -52,9 +65,11 @@ from faceanim.errors import FaceAnimError, shown
 from faceanim.face.mesh import Mesh
 from faceanim.io.files import check_output_path
 from faceanim.io.gltf import build_gltf, checked_blendshapes, save_glb
-from faceanim.standards.vrm import BLINKS, EMOTIONS, LICENSE_FIELDS, LICENSE_FLAGS, LOOKS, PRESETS
+from faceanim.standards.vrm import BLINKS, EMOTIONS, LICENSE_FIELDS, LICENSE_FLAGS, LOOKS, PRESETS, VRM0_FROM_1
 
 VRM_EXTENSION = "VRMC_vrm"
+VRM0_EXTENSION = "VRM"
+HALF_TURN = np.diag([-1.0, 1.0, -1.0])  # VRM 1.0's axes (facing +Z) to 0.x's (facing -Z)
 LICENSE_URL = "https://vrm.dev/licenses/1.0/"
 
 
@@ -231,8 +246,10 @@ def _expressions(expressions: Mapping, names: list[str], node: int, custom: bool
 def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.ndarray],
               expressions: Mapping[str, Mapping[str, float]], *, head_pivot, rotation=None,
               scale: float = 1.0, eyes=None, meta: Mapping | None = None, look_at: Mapping | None = None,
-              extras: dict | None = None, custom: Mapping[str, Mapping[str, float]] | None = None) -> Path:
-    """Write ``mesh`` with its blendshapes as a VRM 1.0 avatar (see the module docstring).
+              extras: dict | None = None, custom: Mapping[str, Mapping[str, float]] | None = None,
+              version: int = 1, thumbnail: bytes | None = None) -> Path:
+    """Write ``mesh`` with its blendshapes as a VRM 1.0 (or, ``version=0``, 0.x) avatar (see the
+    module docstring).
 
     Parameters
     ----------
@@ -253,12 +270,18 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
         ``{"rangeMapHorizontalOuter": {"inputMaxValue": 30, "outputScale": 1}}``
     extras : JSON-safe metadata stored as the scene's ``extras``
     custom : custom expression name -> {morph target name: weight in 0..1} (names not presets')
+    version : 1 (VRM 1.0, ``VRMC_vrm``) or 0 (VRM 0.x, ``VRM``)
+    thumbnail : PNG bytes of the avatar's thumbnail (meta), or None
 
     Raises :class:`FaceAnimError` (one line) on an unknown preset or target name, a weight outside
     0..1, bad meta values, a scale that does not make a head-sized avatar, or an output path that
     cannot be written (checked before any work; nothing is left behind).
     """
     path = check_output_path(path)
+    if version not in (0, 1) or isinstance(version, bool):
+        raise FaceAnimError(f"the VRM version must be 0 (VRM 0.x) or 1 (VRM 1.0), not '{shown(version)}'")
+    if thumbnail is not None and (not isinstance(thumbnail, bytes) or not thumbnail.startswith(b"\x89PNG")):
+        raise FaceAnimError("the VRM thumbnail must be the bytes of a PNG image")
     pivot = _vector(head_pivot, "head_pivot")
     rot = _rotation(rotation)
     eye_point = None if eyes is None else _vector(eyes, "eyes")
@@ -274,16 +297,18 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
     doc_meta = _meta(meta, mesh.name)
     ranges = _look_at(look_at)
 
-    # metres, +Y up, facing +Z, relative to the head bone: transform the data, not the nodes
-    moved = scale * (mesh.vertices - pivot) @ rot.T
+    # metres, +Y up, facing +Z (0.x: -Z), relative to the head bone: transform the data, not the nodes
+    axes = rot if version == 1 else HALF_TURN @ rot
+    moved = scale * (mesh.vertices - pivot) @ axes.T
     size = float(np.linalg.norm(moved.max(0) - moved.min(0)))
     if not HEAD_SIZE_RANGE[0] <= size <= HEAD_SIZE_RANGE[1]:
         raise FaceAnimError(f"with scale {scale:g} the mesh measures {size:.3g} m across, not a head's size "
                             f"({HEAD_SIZE_RANGE[0]:g}-{HEAD_SIZE_RANGE[1]:g} m): give scale as metres per mesh "
                             "unit (0.001 for millimetres, 0.01 for centimetres)")
     vrm_mesh = dataclasses.replace(mesh, vertices=moved)
-    shapes = {name: scale * np.asarray(d, dtype=np.float64) @ rot.T for name, d in blendshapes.items()}
+    shapes = {name: scale * np.asarray(d, dtype=np.float64) @ axes.T for name, d in blendshapes.items()}
     gltf = build_gltf(vrm_mesh, shapes, extras=extras)
+    thumb = None if thumbnail is None else _append_image(gltf, thumbnail)
 
     import pygltflib as g
 
@@ -294,7 +319,7 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
     position = {name: np.asarray(p) for name, _, p in SKELETON}
     for name, parent, p in SKELETON:
         bone_index[name] = len(nodes)
-        local = np.asarray(p) - (position[parent] if parent else 0.0)
+        local = (np.asarray(p) - (position[parent] if parent else 0.0)) * (1.0 if version == 1 else HALF_TURN.diagonal())
         nodes.append(g.Node(name=name, translation=[round(float(x), 6) for x in local], children=[]))
         nodes[bone_index[parent] if parent else root].children.append(bone_index[name])
     nodes[bone_index["head"]].children.append(mesh_node)
@@ -302,6 +327,14 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
         if node.children == []:
             node.children = None  # glTF: children, when present, are not empty
     gltf.scenes[0].nodes = [root]
+    eye_offset = None if eye_point is None else scale * rot @ (eye_point - pivot)  # VRM 1.0's axes
+    if version == 0:
+        ext = _vrm0_extension(gltf, doc_meta, bone_index, mesh_node, preset, customs, ranges, eye_offset, thumb)
+        gltf.extensionsUsed = [*(gltf.extensionsUsed or []), VRM0_EXTENSION]
+        gltf.extensions = {**(gltf.extensions or {}), VRM0_EXTENSION: ext}
+        return save_glb(gltf, path)
+    if thumb is not None:
+        doc_meta = {**doc_meta, "thumbnailImage": thumb[0]}
 
     vrm = {
         "specVersion": "1.0",
@@ -311,12 +344,106 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
     }
     if any(p in preset for p in LOOKS) or eye_point is not None:
         look = {"type": "expression", **ranges}
-        if eye_point is not None:
-            offset = scale * rot @ (eye_point - pivot)
-            look = {"offsetFromHeadBone": [float(x) for x in offset], **look}
+        if eye_offset is not None:
+            look = {"offsetFromHeadBone": [float(x) for x in eye_offset], **look}
         vrm["lookAt"] = look
     if preset or customs:
         vrm["expressions"] = {**({"preset": preset} if preset else {}), **({"custom": customs} if customs else {})}
     gltf.extensionsUsed = [*(gltf.extensionsUsed or []), VRM_EXTENSION]
     gltf.extensions = {**(gltf.extensions or {}), VRM_EXTENSION: vrm}
     return save_glb(gltf, path)
+
+
+def _append_image(gltf, png: bytes) -> tuple[int, int]:
+    """Add a PNG to the document's binary blob: (its image index, a texture index sampling it)."""
+    import pygltflib as g
+
+    blob = bytearray(gltf.binary_blob() or b"")
+    while len(blob) % 4:
+        blob.append(0)
+    gltf.bufferViews.append(g.BufferView(buffer=0, byteOffset=len(blob), byteLength=len(png)))
+    blob.extend(png)
+    while len(blob) % 4:
+        blob.append(0)
+    gltf.buffers[0].byteLength = len(blob)
+    gltf.set_binary_blob(bytes(blob))
+    gltf.images = [*(gltf.images or []), g.Image(bufferView=len(gltf.bufferViews) - 1, mimeType="image/png")]
+    if not gltf.samplers:
+        gltf.samplers = [g.Sampler(magFilter=g.LINEAR, minFilter=g.LINEAR)]
+    gltf.textures = [*(gltf.textures or []), g.Texture(sampler=0, source=len(gltf.images) - 1)]
+    return len(gltf.images) - 1, len(gltf.textures) - 1
+
+
+def vrm0_meta(meta: Mapping) -> dict:
+    """VRM 0.x's meta from VRM 1.0's fields (as :func:`write_vrm` checks them): who may use the
+    avatar, violent, sexual and commercial use, and the licence: ``Redistribution_Prohibited``
+    unless redistribution is allowed; ``CC0`` or ``CC_BY`` when the 1.0 fields are those licences'
+    (everyone, commercial, modification and redistribution allowed; credit unnecessary or required);
+    else ``Other``, the VRM Public License's URL (and ``otherLicenseUrl``, when given) saying more."""
+    users = {"onlyAuthor": "OnlyAuthor", "onlySeparatelyLicensedPerson": "ExplicitlyLicensedPerson",
+             "everyone": "Everyone"}[meta["avatarPermission"]]
+    free = meta["avatarPermission"] == "everyone" and meta["commercialUsage"] == "corporation" \
+        and meta["modification"] == "allowModificationRedistribution" and meta["allowRedistribution"]
+    if not meta["allowRedistribution"]:
+        licence = "Redistribution_Prohibited"
+    elif free:
+        licence = "CC0" if meta["creditNotation"] == "unnecessary" else "CC_BY"
+    else:
+        licence = "Other"
+    allow = {True: "Allow", False: "Disallow"}
+    return {
+        "title": meta["name"], "version": meta.get("version", ""), "author": ", ".join(meta["authors"]),
+        "contactInformation": meta.get("contactInformation", ""), "reference": ", ".join(meta.get("references", [])),
+        "allowedUserName": users, "violentUssageName": allow[meta["allowExcessivelyViolentUsage"]],
+        "sexualUssageName": allow[meta["allowExcessivelySexualUsage"]],
+        "commercialUssageName": allow[meta["commercialUsage"] != "personalNonProfit"],
+        "otherPermissionUrl": LICENSE_URL, "licenseName": licence,
+        "otherLicenseUrl": meta.get("otherLicenseUrl", "") or (LICENSE_URL if licence == "Other" else ""),
+    }
+
+
+def _vrm0_extension(gltf, meta: dict, bone_index: dict, mesh_node: int, preset: dict, customs: dict,
+                    ranges: dict, eye_offset, thumb) -> dict:
+    """The ``VRM`` (0.x) extension from what the 1.0 writer prepared (see the module docstring)."""
+    meta0 = vrm0_meta(meta)
+    if thumb is not None:
+        meta0["texture"] = thumb[1]
+    groups = []
+    mesh = gltf.nodes[mesh_node].mesh
+    for name, expr in [*preset.items(), *customs.items()]:
+        preset0 = VRM0_FROM_1.get(name) if name in preset else None
+        groups.append({
+            "name": preset0 or (name[0].upper() + name[1:]),
+            "presetName": (preset0 or "unknown").lower(),
+            "binds": [{"mesh": mesh, "index": b["index"], "weight": round(100.0 * b["weight"], 4)}
+                      for b in expr.get("morphTargetBinds", [])],
+            "materialValues": [],
+            "isBinary": False,
+        })
+    curve = [0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0]  # linear from 0 to 1 (Unity keyframes: time, value, tangents)
+    look = {}
+    for key0, key1 in (("lookAtHorizontalInner", "rangeMapHorizontalInner"),
+                       ("lookAtHorizontalOuter", "rangeMapHorizontalOuter"),
+                       ("lookAtVerticalDown", "rangeMapVerticalDown"), ("lookAtVerticalUp", "rangeMapVerticalUp")):
+        look[key0] = {"curve": curve, "xRange": ranges[key1]["inputMaxValue"], "yRange": ranges[key1]["outputScale"]}
+    # 0.x keeps the eye offset in Unity's axes: the glTF 0.x axes with z the other way round
+    offset = np.zeros(3) if eye_offset is None else HALF_TURN @ eye_offset * np.array([1.0, 1.0, -1.0])
+    materials = [{"name": m.name or f"material{k}", "shader": "VRM_USE_GLTFSHADER", "renderQueue": 2000,
+                  "floatProperties": {}, "vectorProperties": {}, "textureProperties": {}, "keywordMap": {},
+                  "tagMap": {}} for k, m in enumerate(gltf.materials or [])]
+    return {
+        "exporterVersion": "faceanim",
+        "specVersion": "0.0",
+        "meta": meta0,
+        "humanoid": {"humanBones": [{"bone": name, "node": bone_index[name], "useDefaultValues": True}
+                                    for name, _, _ in SKELETON],
+                     "armStretch": 0.05, "legStretch": 0.05, "upperArmTwist": 0.5, "lowerArmTwist": 0.5,
+                     "upperLegTwist": 0.5, "lowerLegTwist": 0.5, "feetSpacing": 0.0, "hasTranslationDoF": False},
+        "firstPerson": {"firstPersonBone": bone_index["head"],
+                        "firstPersonBoneOffset": dict(zip("xyz", (float(v) for v in offset))),
+                        "meshAnnotations": [{"mesh": mesh, "firstPersonFlag": "ThirdPersonOnly"}],
+                        "lookAtTypeName": "BlendShape", **look},
+        "blendShapeMaster": {"blendShapeGroups": groups},
+        "secondaryAnimation": {"boneGroups": [], "colliderGroups": []},
+        "materialProperties": materials,
+    }

@@ -44,3 +44,14 @@ VRM0_LICENSE_FIELDS = {
     "licenseName": ("Redistribution_Prohibited", "CC0", "CC_BY", "CC_BY_NC", "CC_BY_SA", "CC_BY_NC_SA", "CC_BY_ND",
                     "CC_BY_NC_ND", "Other"),
 }
+
+# licence presets for faceanim rig --license: VRM 1.0 meta fields (0.x's follow from them)
+CC0_URL = "https://creativecommons.org/publicdomain/zero/1.0/"
+CC_BY_URL = "https://creativecommons.org/licenses/by/4.0/"
+_OPEN = {"avatarPermission": "everyone", "commercialUsage": "corporation",
+         "modification": "allowModificationRedistribution", "allowRedistribution": True}
+LICENSE_PRESETS: dict[str, dict] = {
+    "private": {},  # the most restrictive settings (the writer's defaults)
+    "cc0": {**_OPEN, "creditNotation": "unnecessary", "otherLicenseUrl": CC0_URL},
+    "cc-by": {**_OPEN, "creditNotation": "required", "otherLicenseUrl": CC_BY_URL},
+}
