@@ -334,7 +334,7 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
         gltf.extensions = {**(gltf.extensions or {}), VRM0_EXTENSION: ext}
         return save_glb(gltf, path)
     if thumb is not None:
-        doc_meta = {**doc_meta, "thumbnailImage": thumb[0]}
+        doc_meta = {**doc_meta, "thumbnailImage": thumb}
 
     vrm = {
         "specVersion": "1.0",
@@ -354,8 +354,8 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
     return save_glb(gltf, path)
 
 
-def _append_image(gltf, png: bytes) -> tuple[int, int]:
-    """Add a PNG to the document's binary blob: (its image index, a texture index sampling it)."""
+def _append_image(gltf, png: bytes) -> int:
+    """Add a PNG to the document's binary blob as an image; its index."""
     import pygltflib as g
 
     blob = bytearray(gltf.binary_blob() or b"")
@@ -368,10 +368,17 @@ def _append_image(gltf, png: bytes) -> tuple[int, int]:
     gltf.buffers[0].byteLength = len(blob)
     gltf.set_binary_blob(bytes(blob))
     gltf.images = [*(gltf.images or []), g.Image(bufferView=len(gltf.bufferViews) - 1, mimeType="image/png")]
+    return len(gltf.images) - 1
+
+
+def _texture(gltf, image: int) -> int:
+    """A texture sampling ``image`` (VRM 0.x's meta names its thumbnail by texture); its index."""
+    import pygltflib as g
+
     if not gltf.samplers:
         gltf.samplers = [g.Sampler(magFilter=g.LINEAR, minFilter=g.LINEAR)]
-    gltf.textures = [*(gltf.textures or []), g.Texture(sampler=0, source=len(gltf.images) - 1)]
-    return len(gltf.images) - 1, len(gltf.textures) - 1
+    gltf.textures = [*(gltf.textures or []), g.Texture(sampler=0, source=image)]
+    return len(gltf.textures) - 1
 
 
 def vrm0_meta(meta: Mapping) -> dict:
@@ -407,7 +414,7 @@ def _vrm0_extension(gltf, meta: dict, bone_index: dict, mesh_node: int, preset: 
     """The ``VRM`` (0.x) extension from what the 1.0 writer prepared (see the module docstring)."""
     meta0 = vrm0_meta(meta)
     if thumb is not None:
-        meta0["texture"] = thumb[1]
+        meta0["texture"] = _texture(gltf, thumb)
     groups = []
     mesh = gltf.nodes[mesh_node].mesh
     for name, expr in [*preset.items(), *customs.items()]:
