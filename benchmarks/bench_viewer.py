@@ -62,7 +62,7 @@ def models(folder: Path) -> list[tuple[str, Path]]:
         arkit = {n: full.shapes[n] for n in full.sets.get("arkit", [])}
         shapes, sets = full.shapes, full.sets
     except ImportError:  # before faceanim.autorig: the player's full rig
-        from faceanim.player import full_rig
+        from faceanim.autorig import full_rig
 
         rig = full_rig(face)
         shapes, sets, arkit = rig.blendshape_dict(), None, {}

@@ -140,7 +140,7 @@ def assert_imports_as_written(report: dict, arrays: dict, glb: Path, check_targe
 @pytest.fixture(scope="module")
 def rig_and_curves():
     from faceanim.face.face import Face
-    from faceanim.player import full_rig
+    from faceanim.autorig import full_rig
 
     rig = full_rig(Face.default())
     frames = 20

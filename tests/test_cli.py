@@ -128,3 +128,23 @@ def test_landmarks_from_a_file_override_detection(tmp_path, mesh_file, base_face
     far = _write(tmp_path, "far.json", {"points": [{"name": "x", "position": [0, 0, 3]}]})
     assert main(["landmarks", str(mesh_file), "--from", str(far), "-o", str(tmp_path / "f.json")]) == 2
     assert not (tmp_path / "f.json").exists()
+
+
+def test_help_and_version_load_no_command_and_no_numpy():
+    """`faceanim --help` lists every command from the table alone; a command's module (and numpy,
+    scipy, MediaPipe...) is loaded only when that command runs or its help is asked for."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom faceanim.cli import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+            "mods = sorted(m for m in sys.modules if m.startswith(('faceanim.cli.', 'numpy')))\n"
+            "print(' '.join(mods), file=sys.stderr)\n")
+    for argv, loaded in ((["--help"], "faceanim.cli.commands"), (["--version"], "faceanim.cli.commands"),
+                         (["say", "--help"], "faceanim.cli.commands faceanim.cli.common faceanim.cli.mpeg4")):
+        out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, check=True)
+        assert out.stderr.strip().splitlines()[-1] == loaded, argv
+        if argv == ["--help"]:
+            from faceanim.cli.commands import COMMANDS
+
+            assert all(name in out.stdout for name in COMMANDS)

@@ -70,10 +70,14 @@ def test_rig_glb_carries_every_control(tmp_path, astronaut):
     out = tmp_path / "head.glb"
     assert run(["photo", "--front", astronaut, "--rig", "--texture-size", "256", "-o", out]) == 0
     gltf = pygltflib.GLTF2().load(str(out))
-    names = set(gltf.meshes[0].extras["targetNames"])
-    assert {"AU12", "AU12_L", "AU43", "joy", "viseme_01", "viseme_14", "fap_surprise",
-            "arkit_jawOpen", "arkit_eyeBlink_L", "arkit_mouthSmile_R", "arkit_tongueOut"} <= names
-    assert len(names) == 95 + 54  # the generic head's 53 ICT shapes and its tongueOut
+    from faceanim.catalogue import RIG_SETS
+
+    names = gltf.meshes[0].extras["targetNames"]
+    sets = gltf.scenes[0].extras["morph_sets"]  # what faceanim rig writes: the whole catalogue
+    assert list(sets) == list(RIG_SETS) and sum(sets.values(), []) == names
+    assert {"jawOpen", "eyeBlinkLeft", "mouthSmileRight", "tongueOut", "viseme_PP", "viseme_U", "mouthOpen",
+            "eyesClosed", "AU12", "AU12_L", "AU43", "joy", "open_jaw"} <= set(names)
+    assert len(sets["arkit"]) == 52
 
 
 def test_png_shows_the_head_from_three_sides(tmp_path, astronaut):

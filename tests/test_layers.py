@@ -19,7 +19,7 @@ SRC = Path(faceanim.__file__).parent
 
 # module prefix -> rank; a module may import modules of its own rank or lower
 RANKS = [
-    ("faceanim.errors", 0), ("faceanim.limits", 0), ("faceanim.io.files", 0), ("faceanim.standards", 0),
+    ("faceanim.errors", 0), ("faceanim.limits", 0), ("faceanim.io.files", 0), ("faceanim.standards", 0), ("faceanim.catalogue", 0), ("faceanim.version", 0),
     ("faceanim.face.mesh", 1),
     ("faceanim.face.faps", 2), ("faceanim.io", 2),
     ("faceanim.deform.handles", 5),  # reads a handle file: 2D picks are cast onto the face

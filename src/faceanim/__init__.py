@@ -1,3 +1,5 @@
 """faceanim: 3D facial animation from the papers, as working software."""
 
-__version__ = "0.1.0"
+from faceanim.version import __version__
+
+__all__ = ["__version__"]

@@ -37,15 +37,12 @@ from pathlib import Path
 
 import numpy as np
 
+from faceanim.catalogue import EMOTIONS, RIG_SETS
 from faceanim.errors import FaceAnimError, shown
 from faceanim.face.face import Face
 from faceanim.rig.rig import Rig
 from faceanim.standards.visemes import RPM_EXTRAS
 
-RIG_SETS = ("arkit", "visemes", "rpm", "au", "emotions", "fap")
-
-
-EMOTIONS = ("joy", "sadness", "surprise", "fear", "anger", "disgust")
 
 # values a FAP takes at weight 1 when faceanim's tables never use it: a fifth of a FAPU x 1024
 # for a displacement, 0.3 rad for an angle
@@ -67,6 +64,12 @@ class AutoRig:
 
     def rig(self) -> Rig:
         return Rig.from_blendshapes(self.face.mesh, self.shapes)
+
+
+def full_rig(face: Face, sets=RIG_SETS, progress=None) -> Rig:
+    """Every control of ``sets`` (default: all) on ``face`` as one Rig of blendshapes: what
+    ``faceanim rig`` writes, to evaluate, render or export (:func:`auto_rig`'s shapes)."""
+    return auto_rig(face, sets, progress).rig()
 
 
 def parse_sets(text: str) -> list[str]:

@@ -2,8 +2,8 @@
 
 The writers take a :class:`~faceanim.rig.rig.Rig` and an (F, C) matrix of control curves, whatever
 built the rig (expressions, action units, FAPs, wires) and whatever drove the curves (key frames,
-a FAP stream, speech, a scene script). :func:`full_rig` gathers every control faceanim has on a
-face into one Rig (the glTF of ``faceanim photo --rig``).
+a FAP stream, speech, a scene script). Every control faceanim has on a face, as one Rig:
+:func:`faceanim.autorig.full_rig`.
 """
 
 from __future__ import annotations
@@ -99,33 +99,6 @@ def render_wires(mesh: Mesh, wireset: WireSet, vertices=None, controls=None, siz
             for x, y in (r.project(curve.control) * size).astype(int):
                 cv2.circle(img, (int(x), int(y)), 4, colour, -1, cv2.LINE_AA)
     return img
-
-
-def full_rig(face: Face, extra: dict[str, np.ndarray] | None = None) -> Rig:
-    """Every control faceanim has on ``face``, as one Rig of blendshapes: the FACS action units
-    with their one-sided halves and the six emotions (Erdogdu), the 14 MPEG-4 visemes
-    (``viseme_01``..) and 6 expressions (``fap_joy``..) posed by the FAP rig (its jaw and eyeballs
-    included), and ``extra`` named shapes (e.g. a photo head's carried ARKit shapes)."""
-    from faceanim.drivers.mpeg4 import expression_faps, fap_set, viseme_table
-    from faceanim.rig.transfer import ExpressionTransfer, default_model
-
-    shapes = dict(ExpressionTransfer(face).rig(default_model(), sides=True).blendshape_dict())
-    fap = FapRig.build(face)
-    rest = face.mesh.vertices
-
-    def pose(values: dict[int, float]) -> np.ndarray:
-        curves = np.zeros((1, fap.n_controls))
-        for number, v in values.items():
-            curves[0, number - 1] = v
-        return fap.evaluate(curves)[0] - rest
-
-    for number, spec in sorted(viseme_table()["visemes"].items(), key=lambda kv: int(kv[0])):
-        if spec["faps"]:
-            shapes[f"viseme_{int(number):02d}"] = pose(fap_set(spec["faps"]))
-    for spec in viseme_table()["expressions"].values():  # the six MPEG-4 expressions
-        shapes[f"fap_{spec['name']}"] = pose(expression_faps(spec["name"]))
-    shapes.update(extra or {})
-    return Rig.from_blendshapes(face.mesh, shapes)
 
 
 ARKIT_FIT_VERTICES = 3000  # face vertices the ARKit fit of a FAP stream looks at (evenly spread)

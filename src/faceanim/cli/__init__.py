@@ -1,7 +1,9 @@
 """The ``faceanim`` command: parses arguments, calls the library, reports.
 
-One small module per command group (:mod:`.mesh`, :mod:`.facs`, :mod:`.wires`, :mod:`.mpeg4`)
-registers its parsers; :mod:`.common` holds what they share. Every user error becomes one line on
+One small module per command group (:mod:`.mesh`, :mod:`.facs`, :mod:`.wires`, :mod:`.mpeg4`, ...)
+registers its parsers; :mod:`.common` holds what they share. :data:`.commands.COMMANDS` names each
+command's module and help line: a command's module is imported only when that command runs (or
+its help is asked for), so ``faceanim --help`` loads none. Every user error becomes one line on
 stderr and exit code 2; outputs are checked before any work and written atomically, so no partial
 file is left.
 """
@@ -11,18 +13,9 @@ from __future__ import annotations
 import argparse
 import re
 import sys
-from pathlib import Path
 
-from faceanim.cli import batch, facs, live, mesh, mpeg4, photo, rig, video, view, wires
-from faceanim.cli.common import (
-    DEFAULT_SIZE,
-    FPS,
-    SIZE,
-    check_outputs,
-    quiet_native_logs,
-)
+from faceanim.cli.commands import COMMANDS
 from faceanim.errors import FaceAnimError
-from faceanim.limits import DEFAULT_FPS
 
 
 class _Help(argparse.HelpFormatter):
@@ -43,32 +36,18 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def _cmd_demo(args) -> None:
-    from faceanim.demo import run_demo
-    from faceanim.limits import check_video
-
-    check_video(1, args.size, args.size)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise FaceAnimError(f"--out '{out}' is a file; give a folder")
-    if not out.exists():
-        check_outputs(out)  # its parent must exist and be writable
-    written = run_demo(out, fps=args.fps, size=args.size, quiet=args.quiet)
-    print(f"wrote {len(written)} files to {out}/:")
-    for p in written:
-        print(f"  {p}  ({p.stat().st_size / 1024:.0f} KiB)")
-
-
 def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
+    from faceanim.version import __version__
 
-    try:
-        return version("faceanim")
-    except PackageNotFoundError:
-        return "unknown"
+    return __version__
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The whole parser (``command`` None: every command's module imported), or the parser with
+    ``command``'s module registered and the other commands listed by name and help only (``""``:
+    none registered, for ``faceanim --help``)."""
+    import importlib
+
     fmt = _Help
     p = _Parser(prog="faceanim", formatter_class=fmt,
                 description="3D facial animation from the papers: make a head from photos, rig any face mesh, animate "
@@ -78,17 +57,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--verbose", action="store_true", help="show MediaPipe's log and Python tracebacks")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    d = sub.add_parser("demo", help="animate the embedded default face: GLB, MP4 and PNGs", formatter_class=fmt)
-    d.add_argument("--out", default="faceanim-demo", help="output folder")
-    d.add_argument("--fps", type=FPS, default=DEFAULT_FPS, help="frames per second (up to 240)")
-    d.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="image pixels per side (16..4096)")
-    d.add_argument("--quiet", action="store_true", help="no progress bar")
-    d.set_defaults(func=_cmd_demo)
-    photo.register(sub)
-    video.register(sub)
-    live.register(sub)
-    for group in (mesh, rig, facs, wires, mpeg4, view, batch):
-        group.register(sub)
+    wanted = list(dict.fromkeys(m for m, _ in COMMANDS.values())) if command is None else \
+        ([COMMANDS[command][0]] if command in COMMANDS else [])
+    for name, (module, text) in COMMANDS.items():  # in the table's order
+        if module in wanted:
+            importlib.import_module(f"faceanim.cli.{module}").register(sub)
+            wanted.remove(module)
+        elif name not in sub.choices:
+            sub.add_parser(name, help=text)  # listed only: its module is not loaded
     sub.metavar = "{" + ",".join(sub.choices) + "}"  # the commands, each once (not their aliases)
     for action in sub.choices.values():
         _defaults_everywhere(action, fmt)
@@ -121,7 +97,10 @@ def _join_axis_values(argv: list[str]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     argv = _join_axis_values(list(sys.argv[1:] if argv is None else argv))
-    args = build_parser().parse_args(argv)
+    command = next((a for a in argv if not a.startswith("-")), "")
+    args = build_parser(command).parse_args(argv)
+    from faceanim.cli.common import quiet_native_logs
+
     quiet_native_logs(args.verbose)
     name = " ".join(x for x in (args.command, getattr(args, "wires_command", None),
                                 getattr(args, "fap_command", None), getattr(args, "mocap_command", None),

@@ -12,6 +12,8 @@ import time
 from functools import lru_cache
 from pathlib import Path
 
+from faceanim.cli.commands import HELP
+from faceanim.cli import build_parser
 from faceanim.cli.common import CommandError
 from faceanim.errors import FaceAnimError, shown
 
@@ -29,8 +31,6 @@ MAX_RETRIES = 10
 
 @lru_cache(maxsize=1)
 def _parser():
-    from faceanim.cli import build_parser
-
     return build_parser()
 
 
@@ -300,8 +300,7 @@ def _cmd_batch(args) -> None:
 def register(sub) -> None:
     from faceanim.cli.common import _arg_type
 
-    p = sub.add_parser("batch", help="run one command over a whole dataset on Dask (a local cluster, or "
-                                     "--scheduler): every combination of its inputs, resumable",
+    p = sub.add_parser("batch", help=HELP["batch"],
                        description="Run one faceanim command over every combination of its inputs, on Dask: a "
                                    "LocalCluster on this machine, or the cluster at --scheduler. The job file "
                                    "(YAML or JSON) has operation, inputs (each input by its CLI name: a path, a "

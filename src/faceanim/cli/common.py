@@ -8,8 +8,6 @@ import os
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from faceanim.errors import FaceAnimError, shown
 from faceanim.limits import (
     MAX_DURATION,
@@ -159,10 +157,12 @@ def progress(total: int, desc: str, quiet: bool = False):
     return tqdm(total=total, desc=desc, unit="frame", disable=quiet or not sys.stderr.isatty(), leave=False)
 
 
-def write_pose(args, face, shapes: dict[str, np.ndarray], pose: str, weight: float) -> list[Path]:
+def write_pose(args, face, shapes: dict, pose: str, weight: float) -> list[Path]:
     """The face posed with blendshape ``pose`` at ``weight`` as OBJ/PLY or a PNG render; GLB:
     the rest mesh with every blendshape as a morph target and a short animation of ``pose``
     from 0 to ``weight`` and back."""
+    import numpy as np
+
     from faceanim.io.meshio import save_mesh
     from faceanim.player import write_rig_gltf
     from faceanim.render import render_png

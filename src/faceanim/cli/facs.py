@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
+from faceanim.cli.commands import HELP
 from faceanim.cli.common import (
     DEFAULT_SIZE,
     SIZE,
@@ -23,6 +22,8 @@ SUFFIXES = [".glb", ".png", ".obj", ".ply"]
 
 
 def _cmd_au(args) -> None:
+    import numpy as np
+
     from faceanim.rig.facs import default_library
     from faceanim.rig.transfer import CUTOFF, ExpressionTransfer, default_model
 
@@ -63,7 +64,7 @@ def _cmd_transfer(args) -> None:
 
 
 def register(sub) -> None:
-    a = sub.add_parser("au", help="pose a face with FACS action units or an emotion (built-in AU library)")
+    a = sub.add_parser("au", help=HELP["au"])
     add_face(a, aliases=("--target",))
     a.add_argument("--au", help="action units: 12, 1,2 or all")
     a.add_argument("--emotion", help="joy, sadness, surprise, fear, anger or disgust")
@@ -76,7 +77,7 @@ def register(sub) -> None:
     a.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="PNG pixels per side (16..4096)")
     a.set_defaults(func=_cmd_au)
 
-    t = sub.add_parser("transfer", help="learn AUs from a neutral/expressive scan pair and apply them to a face")
+    t = sub.add_parser("transfer", help=HELP["transfer"])
     t.add_argument("--source-neutral", required=True, metavar="MESH")
     t.add_argument("--source-expressive", required=True, metavar="MESH")
     t.add_argument("--source-neutral-landmarks", metavar="JSON", help="landmarks of the neutral scan (else detected)")

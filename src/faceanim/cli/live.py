@@ -7,6 +7,7 @@ import signal
 import sys
 from pathlib import Path
 
+from faceanim.cli.commands import HELP
 from faceanim.cli.common import CommandError, _arg_type, check_outputs
 from faceanim.errors import shown
 
@@ -93,8 +94,7 @@ def _cmd_live(args) -> None:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("live", help="a camera, a clip or a sound drives ARKit curves live: VMC apps, Unreal Live "
-                                    "Link, CSV, the viewer",
+    p = sub.add_parser("live", help=HELP["live"],
                        description="Track a face live (a camera, or a clip played at its own frame rate), run the "
                                    "performance synthesis of `faceanim perform` causally (and/or lip sync a sound "
                                    "played in real time, --audio), and send ARKit's 52 curves "

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
+from faceanim.cli.commands import HELP
 from faceanim.cli.common import (
     ANGLE,
     DEFAULT_SIZE,
@@ -43,6 +42,8 @@ def _cmd_landmarks(args) -> None:
 
 
 def _cmd_deform(args) -> None:
+    import numpy as np
+
     from faceanim.deform.handles import load_handles
     from faceanim.io.meshio import save_mesh
 
@@ -117,7 +118,7 @@ def _axes(p) -> None:
 
 
 def register(sub) -> None:
-    lm = sub.add_parser("landmarks", help="detect named 3D landmarks on a mesh")
+    lm = sub.add_parser("landmarks", help=HELP["landmarks"])
     add_face(lm, landmarks=False)
     add_output(lm, [".json"])
     lm.add_argument("--scheme", default="mediapipe478", choices=["mediapipe478", "basic22"])
@@ -129,7 +130,7 @@ def register(sub) -> None:
                      help="take landmarks from this file instead of detecting them (snapped onto the mesh)")
     lm.set_defaults(func=_cmd_landmarks)
 
-    df = sub.add_parser("deform", help="deform a mesh with RBF handles or GDEs from a JSON file")
+    df = sub.add_parser("deform", help=HELP["deform"])
     add_face(df, landmarks=False)
     df.add_argument("--handles", required=True, metavar="JSON", help="method rbf (handles, offsets) or gde (elements)")
     add_output(df, [".obj", ".ply", ".glb"])
@@ -138,7 +139,7 @@ def register(sub) -> None:
     _axes(df)
     df.set_defaults(func=_cmd_deform)
 
-    r = sub.add_parser("render", help="render a mesh to PNG")
+    r = sub.add_parser("render", help=HELP["render"])
     add_face(r, landmarks=False)
     add_output(r, [".png"])
     r.add_argument("--size", type=SIZE, default=DEFAULT_SIZE, help="pixels per side (16..4096)")
@@ -146,8 +147,7 @@ def register(sub) -> None:
     r.add_argument("--pitch", type=ANGLE, default=4.0, help="degrees")
     r.set_defaults(func=_cmd_render)
 
-    pp = sub.add_parser("preprocess", help="crop a scan, resample it on a regular grid, normalise pose and size "
-                                           "(also writes OUT.landmarks.json)")
+    pp = sub.add_parser("preprocess", help=HELP["preprocess"])
     add_face(pp, aliases=("--scan",))
     add_output(pp, [".obj", ".ply", ".glb"])
     pp.add_argument("--grid", type=GRID, default=150, help="grid vertices per side (8..500)")

@@ -6,8 +6,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
+from faceanim.cli.commands import HELP
 from faceanim.cli.common import (
     DEFAULT_SIZE,
     DURATION,
@@ -24,8 +23,8 @@ from faceanim.cli.common import (
     play_own,
     progress,
 )
-from faceanim.io.rhubarb import CUE_SUFFIXES
 from faceanim.limits import DEFAULT_FPS
+from faceanim.standards.rhubarb import CUE_SUFFIXES
 
 
 def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
@@ -33,6 +32,8 @@ def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
     .csv (Live Link Face: ARKit curves fitted to the stream on this face). The .glb carries the
     face's ARKit shapes driven by those fitted curves (weights 0..1) and the head's rotation, or
     with ``--faps`` one target per FAP (signed weights)."""
+    import numpy as np
+
     from faceanim.io.fapfile import write_fap
     from faceanim.player import gltf_stream, render_stream
 
@@ -127,6 +128,8 @@ def _say_arkit(args, face, phones, wav) -> tuple[list[Path], int, float]:
     """``say`` on the face's own ARKit shapes (:mod:`faceanim.drivers.speech.lipsync`): .glb (the
     shapes used as morph targets by Apple's names, the weights animated, the sound beside it),
     .mp4 (rendered with the sound) or .csv (Live Link Face)."""
+    import numpy as np
+
     from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
     from faceanim.rig.arkit import arkit_shapes
     from faceanim.rig.rig import Rig
@@ -183,6 +186,8 @@ def _sound_beside(glb: Path, companion: Path, wav) -> list[Path]:
 def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
     """``say`` onto the --face avatar's own ARKit-named targets: the same avatar with the speech as one
     more animation, the sound beside it (named in the scene's extras)."""
+    import numpy as np
+
     from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
     from faceanim.io.gltf import sound_companion
     from faceanim.standards.arkit import APPLE_NAMES
@@ -341,10 +346,7 @@ def _video_options(p, suffixes) -> None:
 
 
 def register(sub) -> None:
-    sy = sub.add_parser("say", help="lip-sync: text (synthesized) or recorded speech + transcript to an animated "
-                                    "face, on its ARKit shapes (.glb, .mp4, .csv), as MPEG-4 visemes (.fap) or "
-                                    "as Rhubarb Lip Sync's mouth cues (.tsv, .json); .glb and cues of text also "
-                                    "write the sound beside them (.wav)")
+    sy = sub.add_parser("say", help=HELP["say"])
     sy.add_argument("text", nargs="?", help="what to say (spoken by espeak-ng)")
     sy.add_argument("--audio", metavar="SOUND", help="recorded speech (WAV of any sample format, FLAC, OGG) instead of text")
     sy.add_argument("--transcript", metavar="TXT", help="text file with the words spoken in --audio (more exact "
@@ -358,7 +360,7 @@ def register(sub) -> None:
     _video_options(sy, [".mp4", ".glb", ".fap", ".csv", *CUE_SUFFIXES])
     sy.set_defaults(func=_cmd_say)
 
-    fp = sub.add_parser("fap", help="MPEG-4 FAP files")
+    fp = sub.add_parser("fap", help=HELP["fap"])
     fsub = fp.add_subparsers(dest="fap_command", required=True, metavar="{play,write}")
     fpl = fsub.add_parser("play", help="play a .fap file on a face")
     fpl.add_argument("fap", metavar="FAP", help="the .fap file")
@@ -380,8 +382,7 @@ def register(sub) -> None:
     fw.add_argument("--fps", type=FPS, default=DEFAULT_FPS, help="frames per second (up to 240)")
     fw.set_defaults(func=_cmd_fap_write)
 
-    di = sub.add_parser("direct", help="render a scene script (YAML or JSON): speech, expressions, head motion, "
-                                       "blinks")
+    di = sub.add_parser("direct", help=HELP["direct"])
     di.add_argument("script", metavar="SCRIPT")
     add_face(di, positional=False, default_help="the script's 'face', else the embedded default face")
     _video_options(di, [".mp4", ".glb", ".fap", ".csv"])

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
+from faceanim.cli.commands import HELP
 from faceanim.cli.common import (
     DEFAULT_SIZE,
     SIZE,
@@ -22,9 +21,10 @@ SUFFIXES = [".glb", ".obj", ".png"]
 
 
 def _cmd_photo(args) -> None:
+    import numpy as np
+
     from faceanim.build.photo import head_from_photos
     from faceanim.face.face import HEAD_MARGIN
-    from faceanim.face.generic_head import generic_head
     from faceanim.io.meshio import save_mesh
 
     out = Path(args.output)
@@ -50,12 +50,10 @@ def _cmd_photo(args) -> None:
                 views.append(r.render())
         written = [save_png(out, np.hstack(views))]
     elif suffix == ".glb":
-        from faceanim.player import full_rig, write_rig_gltf
+        if args.rig:  # what faceanim rig writes for the head: every set of the catalogue
+            from faceanim.autorig import auto_rig, write_rigged
 
-        if args.rig:
-            rig = full_rig(face, generic_head().carried_shapes(ph.fitted.affine[:, :3], "arkit_"))
-            curves = np.zeros((2, rig.n_controls))
-            written = [write_rig_gltf(rig, curves, out, fps=1.0, name="rest", names=rig.controls)]
+            written = [write_rigged(out, auto_rig(face))[0]]
         else:
             from faceanim.io.gltf import write_gltf
 
@@ -70,8 +68,7 @@ def _cmd_photo(args) -> None:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("photo", help="a person's full head from a front photo and side photos: textured, "
-                                     "animatable (GLB with --rig: every control as a morph target)",
+    p = sub.add_parser("photo", help=HELP["photo"],
                        description="A whole head from photos (Lee et al. 1999): the generic head fitted to the "
                                    "feature points of the photos, with one texture atlas. Outputs: .glb (textured; "
                                    "--rig adds every control as a morph target), .obj (with .mtl and "

@@ -7,6 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from faceanim.cli.commands import HELP
 from faceanim.cli.common import CommandError, add_face, add_output, check_outputs, face_path, load_face, report
 from faceanim.cli.mesh import _axes
 from faceanim.errors import shown
@@ -125,10 +126,9 @@ def _cmd_rig(args) -> None:
 
 
 def register(sub) -> None:
-    from faceanim.autorig import RIG_SETS
+    from faceanim.catalogue import RIG_SETS
 
-    p = sub.add_parser("rig", help="rig any face mesh: ARKit's 52 blendshapes (Apple's names), visemes, FACS AUs, "
-                                   "emotions and FAPs as named morph targets (.glb) or a VRM 1.0 avatar (.vrm)",
+    p = sub.add_parser("rig", help=HELP["rig"],
                        description="Rig a face mesh automatically: landmarks detected (or --landmarks), then every "
                                    "control of the asked sets written as a named morph target on the mesh, vertex "
                                    "order kept. Sets: arkit (Apple ARKit blendshapes, eyeBlinkLeft ... ; Left/Right "

@@ -5,8 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import numpy as np
-
+from faceanim.cli.commands import HELP
 from faceanim.cli.common import (
     CommandError,
     own_targets,
@@ -66,6 +65,8 @@ def _camera_frames(index: int, n_frames: int):
 
 
 def _cmd_track(args) -> None:
+    import numpy as np
+
     from faceanim.drivers.video.tracking import CONTROL_NAMES, POSE_NAMES, track_frames
     from faceanim.io.curves import write_curves_csv
     from faceanim.io.video import video_frames, video_info
@@ -91,6 +92,8 @@ def _cmd_track(args) -> None:
 
 
 def _cmd_mocap_build(args) -> None:
+    import numpy as np
+
     from faceanim.build.motion import build_database
     from faceanim.drivers.video.tracking import track_video
     from faceanim.io.arkit_csv import read_arkit_csv
@@ -205,8 +208,7 @@ def _cmd_arkit_play(args) -> None:
 
 
 def register(sub) -> None:
-    t = sub.add_parser("track", help="head pose (6 DOF) and the 15 expression control parameters of a video's face, "
-                                     "per frame, as CSV (Chai et al. 2003)",
+    t = sub.add_parser("track", help=HELP["track"],
                        description="Track the face in a video (or a camera) with the MediaPipe face mesh: per frame "
                                    "the head's yaw, pitch, roll (degrees), position (x, y pixels of the nose bridge) "
                                    "and scale (pixels per metre), and the paper's 15 control parameters from 19 "
@@ -224,7 +226,7 @@ def register(sub) -> None:
     add_output(t, [".csv"])
     t.set_defaults(func=_cmd_track)
 
-    m = sub.add_parser("mocap", help="motion capture databases from ARKit takes (Chai et al. 2003, section 3)")
+    m = sub.add_parser("mocap", help=HELP["mocap"])
     msub = m.add_subparsers(dest="mocap_command", required=True, metavar="{build}")
     b = msub.add_parser("build", help="a motion database from Live Link Face CSV takes played on the generic head",
                         description="Play each take (ARKit's 52 curves) on the generic head (ICT FaceKit, all ARKit "
@@ -244,8 +246,7 @@ def register(sub) -> None:
     add_output(b, [".npz"])
     b.set_defaults(func=_cmd_mocap_build)
 
-    p = sub.add_parser("perform", help="a video's performance on any face: glTF, MP4 beside the video, or ARKit "
-                                       "CSV (Chai et al. 2003)",
+    p = sub.add_parser("perform", help=HELP["perform"],
                        description="Track the performer in VIDEO, turn the 15 control parameters into real motion "
                                    "from a motion database (filtering and synthesis on segments; the shipped "
                                    "database unless --db), retarget its deformation bases onto the face (the "
@@ -280,7 +281,7 @@ def register(sub) -> None:
                help=".tsv/.json: Rhubarb Lip Sync's mouth cues of the performer's mouth")
     p.set_defaults(func=_cmd_perform)
 
-    a = sub.add_parser("arkit", help="Live Link Face recordings (Apple ARKit's 52 curves) played on any face")
+    a = sub.add_parser("arkit", help=HELP["arkit"])
     asub = a.add_subparsers(dest="arkit_command", required=True, metavar="{play}")
     ap = asub.add_parser("play", help="play a Live Link Face CSV take on a face: glTF, MP4 or CSV",
                          description="Play a recorded take (ARKit's 52 blendshape curves and the head's angles, as "

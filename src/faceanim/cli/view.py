@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from faceanim.cli.commands import HELP
 from faceanim.cli.common import CommandError, _arg_type, check_outputs
 from faceanim.errors import shown
 
@@ -61,8 +62,7 @@ def _cmd_view(args) -> None:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("view", help="look at a .glb/.vrm in the browser: sliders for every morph target, play "
-                                    "the animation with its sound, pick landmark/FDP points",
+    p = sub.add_parser("view", help=HELP["view"],
                        description="Serve a local page (127.0.0.1 only; three.js from the package, works "
                                    "offline): orbit camera, a slider per morph target grouped by set (ARKit, "
                                    "visemes, AUs, emotions, FAPs), play/pause and scrub of the animations with "

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
+from faceanim.cli.commands import HELP
 from faceanim.cli.common import (
     DEFAULT_SIZE,
     FPS,
@@ -25,6 +24,8 @@ from faceanim.limits import DEFAULT_FPS
 
 
 def _cmd_extract(args) -> None:
+    import numpy as np
+
     from faceanim.face.regions import face_region
     from faceanim.io.meshio import load_mesh
     from faceanim.rig.wires import align_template, default_wires, extract_template
@@ -91,7 +92,7 @@ def _cmd_blend(args) -> None:
 
 
 def register(sub) -> None:
-    w = sub.add_parser("wires", help="wire curves: extract from expression templates, apply, edit, blend")
+    w = sub.add_parser("wires", help=HELP["wires"])
     wsub = w.add_subparsers(dest="wires_command", required=True, metavar="{extract,apply,blend}")
     we = wsub.add_parser("extract", help="fit the default wires of a base face to an expression template")
     add_face(we, aliases=("--base",), positional=False, default_help="none: required")

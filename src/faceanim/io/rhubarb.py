@@ -15,9 +15,7 @@ from pathlib import Path
 
 from faceanim.errors import FaceAnimError
 from faceanim.io.files import atomic_output
-from faceanim.standards.rhubarb import SHAPES
-
-CUE_SUFFIXES = (".tsv", ".json")
+from faceanim.standards.rhubarb import CUE_SUFFIXES, SHAPES
 
 
 def hundredths(seconds: float) -> int:

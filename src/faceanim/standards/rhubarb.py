@@ -34,4 +34,5 @@ PHONE_SHAPES: dict[str, str] = {
     "AY": "DB", "AW": "DF", "OY": "EB", "EY": "CB", "OW": "EF",
     "SIL": "X",
 }
+CUE_SUFFIXES = (".tsv", ".json")  # the files Rhubarb Lip Sync writes that faceanim writes too
 FIRST_PART = 0.6  # share of a diphthong's time its first shape takes

@@ -19,14 +19,13 @@ from __future__ import annotations
 import re
 from functools import lru_cache
 
-from faceanim.autorig import EMOTIONS
+from faceanim.catalogue import EMOTIONS, RIG_SETS, SET_LABELS
 from faceanim.standards.visemes import RPM_EXTRAS
 from faceanim.standards.vrm import EMOTIONS as VRM_EMOTION_PRESETS
 from faceanim.standards.vrm import VISEMES as VRM_VISEMES
 
-SET_ORDER = ("arkit", "visemes", "rpm", "au", "emotions", "fap", "other")
-SET_LABELS = {"arkit": "ARKit", "visemes": "Visemes", "rpm": "Ready Player Me", "au": "Action units (FACS)",
-              "emotions": "Emotions", "fap": "MPEG-4 FAPs", "other": "Other"}
+SET_ORDER = (*RIG_SETS, "other")
+SET_LABELS = {**SET_LABELS, "other": "Other"}
 VRM_EMOTIONS = VRM_EMOTION_PRESETS + ("neutral",)
 _AU = re.compile(r"AU\d+(_L|_R)?")
 MAX_NAME = 200  # characters of a target name shown; longer names are cut
