@@ -31,7 +31,7 @@ def _cmd_extract(args) -> None:
     from faceanim.rig.wires import align_template, default_wires, extract_template
 
     check_outputs(args.output)
-    face = load_face(args, required=True)
+    face = load_face(args)
     base, lm = face.mesh, face.landmarks
     wireset = default_wires(lm)
     template = load_mesh(args.template)
@@ -54,7 +54,7 @@ def _cmd_apply(args) -> None:
     from faceanim.rig.wires import WireTemplate, edit_template, parse_edits
 
     check_outputs(args.output)
-    face = load_face(args, required=True)
+    face = load_face(args)
     t = WireTemplate.load(args.wires)
     if args.edit:
         moves, scales = parse_edits(read_json(args.edit, "edit file"), t.wireset)
@@ -78,7 +78,7 @@ def _cmd_blend(args) -> None:
 
         check_video(args.frames * len(args.to), args.size, args.size)
     check_outputs(args.output)
-    face = load_face(args, required=True)
+    face = load_face(args)
     templates = [WireTemplate.load(p) for p in [args.source] + list(args.to)]
     rig, curves = blend_chain(face.mesh, face.landmarks, templates, functions, args.frames)
     if Path(args.output).suffix.lower() == ".glb":
@@ -95,7 +95,7 @@ def register(sub) -> None:
     w = sub.add_parser("wires", help=HELP["wires"])
     wsub = w.add_subparsers(dest="wires_command", required=True, metavar="{extract,apply,blend}")
     we = wsub.add_parser("extract", help="fit the default wires of a base face to an expression template")
-    add_face(we, aliases=("--base",), positional=False, default_help="none: required")
+    add_face(we, aliases=("--base",), positional=False)
     we.add_argument("--template", required=True, metavar="MESH", help="the expression, same topology as the base")
     we.add_argument("--no-align", action="store_true",
                     help="keep the template's pose (by default it is aligned rigidly on the skull first)")
@@ -103,7 +103,7 @@ def register(sub) -> None:
     we.set_defaults(func=_cmd_extract)
 
     wa = wsub.add_parser("apply", help="rebuild an expression from its wires on the base face")
-    add_face(wa, aliases=("--base",), positional=False, default_help="none: required")
+    add_face(wa, aliases=("--base",), positional=False)
     wa.add_argument("--wires", required=True, metavar="JSON", help="a .wires.json from `faceanim wires extract`")
     wa.add_argument("--edit", metavar="JSON",
                     help='edits: {"edits": [{"wire": "upper_lip", "control": 3, "offset": [0, 0.002, 0]}]}')
@@ -112,7 +112,7 @@ def register(sub) -> None:
     wa.set_defaults(func=_cmd_apply)
 
     wb = wsub.add_parser("blend", help="blend templates through their wires, feature by feature")
-    add_face(wb, aliases=("--base",), positional=False, default_help="none: required")
+    add_face(wb, aliases=("--base",), positional=False)
     wb.add_argument("--from", dest="source", required=True, metavar="JSON", help="template at t = 0")
     wb.add_argument("--to", required=True, action="append", metavar="JSON",
                     help="template at t = 1; repeat to blend on through more templates (a -> b -> c)")

@@ -229,7 +229,7 @@ class WireTemplate:
         v = base.vertices if isinstance(base, Mesh) else np.asarray(base)
         if len(v) != self.n_vertices:
             raise DeformError(f"this template was extracted on a base face with {self.n_vertices} vertices; "
-                              f"this mesh has {len(v)}")
+                              f"this mesh has {len(v)}: give the face it was extracted on (--face MESH)")
         bound = bound or self.wireset.influence(base, lm478)
         return bound.apply(self.controls, self.scales)
 
