@@ -196,8 +196,7 @@ def test_arkit_play_imports_with_apples_names(blender, tmp_path):
     """``faceanim arkit play``: 52 shape keys named as Apple names them (eyeBlinkLeft first,
     jawOpen ...), a 134 s take as one action, and the head node's rotation as an object action."""
     from faceanim.cli import main
-    from faceanim.standards.arkit import ARKIT_NAMES
-    from faceanim.standards.arkit import apple_name
+    from faceanim.standards.arkit import ARKIT_NAMES, apple_name
 
     glb = tmp_path / "take.glb"
     assert main(["arkit", "play", str(TAKE), "--fps", str(FPS), "-o", str(glb)]) in (0, None)

@@ -134,26 +134,25 @@ def _say_arkit(args, face, phones, wav) -> tuple[list[Path], int, float]:
     from faceanim.rig.arkit import arkit_shapes
     from faceanim.rig.rig import Rig
 
+    from faceanim.standards.arkit import APPLE_NAMES
+
     out = Path(args.output)
     suffix = out.suffix.lower()
-    shapes, _ = arkit_shapes(face)
-    rig = Rig.from_blendshapes(face.mesh, shapes)
-    names = list(rig.controls)
+    rig = None
+    if suffix == ".csv":  # the curves alone: no face needed
+        names = list(APPLE_NAMES)
+    else:
+        shapes, _ = arkit_shapes(face)
+        rig = Rig.from_blendshapes(face.mesh, shapes)
+        names = list(rig.controls)
     curves = lipsync_curves(phones, names, args.fps)
     if args.expression:
         curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),
                          0.0, 1.0)
-    if suffix == ".csv":
+    if suffix == ".csv":  # names are APPLE_NAMES: the columns in Live Link order
         from faceanim.io.arkit_csv import write_arkit_csv
-        from faceanim.standards.arkit import ARKIT_NAMES
-        from faceanim.standards.arkit import apple_name
 
-        column = {n: k for k, n in enumerate(names)}
-        table = np.zeros((len(curves), len(ARKIT_NAMES)))
-        for a, name in enumerate(ARKIT_NAMES):
-            if apple_name(name) in column:
-                table[:, a] = curves[:, column[apple_name(name)]]
-        return [write_arkit_csv(out, table, args.fps, np.zeros((len(curves), 3)))], len(curves), args.fps
+        return [write_arkit_csv(out, curves, args.fps, np.zeros((len(curves), 3)))], len(curves), args.fps
     if suffix == ".glb":
         from faceanim.io.gltf import sound_companion, write_gltf
 
@@ -232,8 +231,11 @@ def _cmd_say(args) -> None:
         note_written(written)
         print(f"wrote {', '.join(map(str, written))} ({n_cues} mouth cues, {len(phones)} phones)")
         return
+    if suffix == ".csv" and (args.face or args.landmarks):
+        raise CommandError("a .csv output holds ARKit curves, not a face: drop --face/--landmarks, or write .glb "
+                           "or .mp4")
     own = own_targets(args, suffix)
-    face = None if own else load_face(args)
+    face = None if own or suffix == ".csv" else load_face(args)
     with tempfile.TemporaryDirectory() as tmp:
         phones, wav = _say_phones(args, voice, Path(tmp))
         written, n_frames, fps = (_say_own if own else _say_fap if suffix == ".fap" else _say_arkit)(args, face,
