@@ -1,4 +1,7 @@
+import atexit
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -6,6 +9,9 @@ import pytest
 
 os.environ.setdefault("GLOG_minloglevel", "2")
 os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+# faceanim's user cache (faceanim.io.cache) in a folder of this test run, not the user's ~/.cache
+os.environ["FACEANIM_CACHE"] = tempfile.mkdtemp(prefix="faceanim-test-cache-")
+atexit.register(shutil.rmtree, os.environ["FACEANIM_CACHE"], ignore_errors=True)
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

@@ -299,7 +299,18 @@ def look_shapes(face: Face, eyes: dict | None = None) -> dict[str, np.ndarray]:
 def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """ARKit's shapes on ``face``: :func:`arkit_rig`'s, with the ``eyeLook*`` shapes also turning
     the eyeballs ``eyes`` (:attr:`FapRig.eyes <faceanim.rig.mpeg4.FapRig>`; found when not given),
-    and the names it cannot make, with why."""
+    and the names it cannot make, with why. Kept in the user cache (:mod:`faceanim.io.cache`): the
+    same mesh, landmarks and eyes with the same faceanim give them back without the work."""
+    from faceanim.io.cache import cached_arrays, content_key
+
+    eye_parts = [] if eyes is None else [(side, None if e is None else [np.asarray(e[0]), np.asarray(e[1])])
+                                         for side, e in sorted(eyes.items())]
+    key = content_key(face.mesh.vertices, face.mesh.faces, face.landmarks,
+                      *[x for side, e in eye_parts for x in ([side] + (e or [None]))])
+    return cached_arrays("arkit_shapes", key, lambda: _arkit_shapes(face, eyes))
+
+
+def _arkit_shapes(face: Face, eyes: dict | None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     eyes = face_eyes(face, eyes)
     rig, missing = arkit_rig(face)
     shapes = {n: rig.blendshape(n) for n in rig.controls}
