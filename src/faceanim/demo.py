@@ -68,12 +68,15 @@ def emotion_blendshapes(face: Face) -> dict[str, np.ndarray]:
 
 
 def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = DEFAULT_FPS, size: int = 512,
-             quiet: bool = False) -> list[Path]:
-    """Build the default face and its expressions; write demo.glb, demo.mp4 and PNGs to ``out_dir``."""
+             quiet: bool = False, progress=None) -> list[Path]:
+    """Build the default face and its expressions; write demo.glb, demo.mp4 and PNGs to ``out_dir``.
+    ``progress``: an optional callable taking the name of each stage as it starts."""
     from tqdm import tqdm
 
+    step = progress or (lambda name: None)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    step("the default face and its expressions")
     face = Face.default()
     shapes = expression_rig(face.mesh, demo_expressions(default_landmarks(face.mesh))).blendshape_dict()
     shapes.update(emotion_blendshapes(face))
@@ -84,13 +87,16 @@ def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = DEFAULT_FPS, si
     shapes["jaw_open"] = arkit["jawOpen"]
     rig = Rig.from_blendshapes(face.mesh, shapes)
     _, curves = expression_tour(rig.controls).sample(fps)
+    step("demo.glb")
     written = [write_rig_gltf(rig, curves, out / "demo.glb", fps, "expressions", names=rig.controls)]
 
     show = not quiet and sys.stderr.isatty()
     with OffscreenRenderer(face.mesh, size=(size, size), **face.view(margin=HEAD_MARGIN, yaw=20.0, pitch=4.0)) as renderer:
+        step("the PNGs")
         written.append(save_png(out / "neutral.png", renderer.render()))
         for name in rig.controls:
             written.append(save_png(out / f"{name}.png", renderer.render(rig.pose({name: 1.0}))))
+        step("demo.mp4")
         frames = (renderer.render(v) for v in frames_of(rig, curves))  # a few frames at a time
         with tqdm(total=len(curves), desc="rendering demo.mp4", unit="frame", disable=not show) as bar:
             written.append(write_video(out / "demo.mp4", frames, fps=fps, progress=bar))

@@ -611,12 +611,14 @@ def load_views(front, sides=()) -> list[PhotoView]:
 
 
 def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_expression: bool = False,
-                     texture_size: int = 1024, blend: str = "pyramid") -> PhotoHead:
+                     texture_size: int = 1024, blend: str = "pyramid", progress=None) -> PhotoHead:
     """The whole pipeline: photos -> a textured, animatable full head (module docstring, 1-5).
 
     ``front``/``sides``: image paths or ``(name, (H, W, 3) uint8)`` pairs; ``points``: corrections
-    (:func:`apply_corrections`, a dict or a JSON path); ``method``: ``dffd`` or ``rbf``.
+    (:func:`apply_corrections`, a dict or a JSON path); ``method``: ``dffd`` or ``rbf``;
+    ``progress``: an optional callable taking the name of each of the four stages as it starts.
     """
+    step = progress or (lambda name: None)
     import time
 
     from faceanim.build.texture import BakeView, atlas_uv, bake_texture
@@ -632,6 +634,7 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
     texture_size = int(check_range(texture_size, "--texture-size", 64, MAX_TEXTURE_SIZE, integer=True))
     timings = {}
     t0 = time.perf_counter()
+    step("feature points in the photos")
     head = generic_head()
     prior, normals = prior_points(head)
     views = load_views(front, sides)
@@ -640,13 +643,16 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
         apply_corrections(views, spec, "points file")
     timings["feature points"] = time.perf_counter() - t0
     t = time.perf_counter()
+    step("cameras and 3D points")
     rec = reconstruct(views, prior, normals)
     check_views(views, rec)
     timings["cameras and 3D points"] = time.perf_counter() - t
     t = time.perf_counter()
+    step("fitting the head")
     fitted = fit_head(head, rec, method, keep_expression)
     timings[f"head modification ({method})"] = time.perf_counter() - t
     t = time.perf_counter()
+    step("the texture")
     faces = head.mesh.faces
     uv, face_uv = atlas_uv(fitted.vertices, faces, head.parts)
     textured = [BakeView(v.image, c) for v, c in zip(views, rec.cameras)]

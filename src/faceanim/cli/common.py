@@ -157,6 +157,26 @@ def progress(total: int, desc: str, quiet: bool = False):
     return tqdm(total=total, desc=desc, unit="frame", disable=quiet or not sys.stderr.isatty(), leave=False)
 
 
+@contextlib.contextmanager
+def stages(desc: str, total: int, quiet: bool = False):
+    """Progress through ``total`` named steps on a terminal (nothing when piped or quiet): yields a
+    callable taking each step's name as it starts (the library's ``progress`` hooks)."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc=desc, unit="step", disable=quiet or not sys.stderr.isatty(), leave=False,
+               bar_format="{desc} [{elapsed}]")
+    started = [0]
+
+    def step(name: str) -> None:
+        started[0] += 1
+        bar.set_description_str(f"{desc}: {min(started[0], total)}/{total} {name}")
+
+    try:
+        yield step
+    finally:
+        bar.close()
+
+
 def write_pose(args, face, shapes: dict, pose: str, weight: float) -> list[Path]:
     """The face posed with blendshape ``pose`` at ``weight`` as OBJ/PLY or a PNG render; GLB:
     the rest mesh with every blendshape as a morph target and a short animation of ``pose``

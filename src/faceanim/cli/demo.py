@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from faceanim.cli.commands import HELP
-from faceanim.cli.common import DEFAULT_SIZE, FPS, SIZE, check_outputs
+from faceanim.cli.common import DEFAULT_SIZE, FPS, SIZE, check_outputs, stages
 from faceanim.errors import FaceAnimError
 from faceanim.limits import DEFAULT_FPS
 
@@ -20,7 +20,8 @@ def _cmd_demo(args) -> None:
         raise FaceAnimError(f"--out '{out}' is a file; give a folder")
     if not out.exists():
         check_outputs(out)  # its parent must exist and be writable
-    written = run_demo(out, fps=args.fps, size=args.size, quiet=args.quiet)
+    with stages("demo", 4, args.quiet) as step:
+        written = run_demo(out, fps=args.fps, size=args.size, quiet=args.quiet, progress=step)
     print(f"wrote {len(written)} files to {out}/:")
     for p in written:
         print(f"  {p}  ({p.stat().st_size / 1024:.0f} KiB)")

@@ -13,6 +13,7 @@ from faceanim.cli.common import (
     check_outputs,
     named_paths,
     report,
+    stages,
 )
 from faceanim.errors import shown
 
@@ -24,8 +25,6 @@ def _cmd_photo(args) -> None:
     import numpy as np
 
     from faceanim.build.photo import head_from_photos
-    from faceanim.face.face import HEAD_MARGIN
-    from faceanim.io.meshio import save_mesh
 
     out = Path(args.output)
     if args.rig and out.suffix.lower() != ".glb":
@@ -36,10 +35,27 @@ def _cmd_photo(args) -> None:
     inputs = [Path(p).resolve() for p in [args.front, *(args.side or []), args.points] if p]
     if out.resolve() in inputs:
         raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
-    ph = head_from_photos(args.front, args.side or [], args.points, method=args.method,
-                          keep_expression=args.keep_expression, texture_size=args.texture_size)
     suffix = out.suffix.lower()
-    face = ph.face()
+    with stages("photo", 5, args.quiet) as step:
+        ph = head_from_photos(args.front, args.side or [], args.points, method=args.method,
+                              keep_expression=args.keep_expression, texture_size=args.texture_size, progress=step)
+        face = ph.face()
+        step("rigging and writing" if args.rig else f"writing {out.name}")
+        written = _write(args, out, suffix, face, ph)
+    rec = ph.reconstruction
+    errs = ", ".join(f"{Path(v.name).name} {np.median(e):.3f}" for v, e in zip(ph.views, rec.errors))
+    print(f"views: {errs} (median reprojection error, inter-ocular distances; the 3D points come from the front "
+          "photo and any profile, so the front's is near 0 by construction)")
+    report(written)
+
+
+def _write(args, out: Path, suffix: str, face, ph) -> list[Path]:
+    """The head as the output asks: PNG (three views), GLB (rigged with --rig) or OBJ/PLY."""
+    import numpy as np
+
+    from faceanim.face.face import HEAD_MARGIN
+    from faceanim.io.meshio import save_mesh
+
     if suffix == ".png":
         from faceanim.render import OffscreenRenderer, save_png
 
@@ -60,11 +76,7 @@ def _cmd_photo(args) -> None:
             written = [write_gltf(out, face.mesh)]
     else:
         written = save_mesh(face.mesh, out, avoid=named_paths(args))
-    rec = ph.reconstruction
-    errs = ", ".join(f"{Path(v.name).name} {np.median(e):.3f}" for v, e in zip(ph.views, rec.errors))
-    print(f"views: {errs} (median reprojection error, inter-ocular distances; the 3D points come from the front "
-          "photo and any profile, so the front's is near 0 by construction)")
-    report(written)
+    return written
 
 
 def register(sub) -> None:
@@ -86,6 +98,7 @@ def register(sub) -> None:
                    help="keep the photo's expression in the rest pose (default: fitted and taken off)")
     p.add_argument("--texture-size", type=int, default=1024,
                    help="texture atlas pixels per side (64..2048; a multiple of 16 keeps the back seam exact)")
+    p.add_argument("--quiet", action="store_true", help="no progress on the terminal")
     p.add_argument("--rig", action="store_true",
                    help="GLB: every control as a morph target (AUs, emotions, visemes, FAP expressions, ARKit)")
     add_output(p, SUFFIXES)

@@ -8,7 +8,16 @@ import sys
 from pathlib import Path
 
 from faceanim.cli.commands import HELP
-from faceanim.cli.common import CommandError, add_face, add_output, check_outputs, face_path, load_face, report
+from faceanim.cli.common import (
+    CommandError,
+    add_face,
+    add_output,
+    check_outputs,
+    face_path,
+    load_face,
+    report,
+    stages,
+)
 from faceanim.cli.mesh import _axes
 from faceanim.errors import shown
 
@@ -90,6 +99,10 @@ def _licence(text: str) -> dict:
     return out
 
 
+def _meta(args, face) -> dict:
+    return {"name": args.title or shown(face.name, VRM_TEXT_LIMIT), "authors": [args.author], **(args.license or {})}
+
+
 def _cmd_rig(args) -> None:
     from faceanim.autorig import auto_rig, parse_sets, write_rigged
     from faceanim.avatar import is_avatar
@@ -111,13 +124,14 @@ def _cmd_rig(args) -> None:
     if args.compact and out.suffix.lower() == ".vrm":
         raise CommandError("--compact writes KHR_mesh_quantization, which VRM tools do not all read; drop it for a .vrm")
     check_outputs(args.output)
-    face = load_face(args)
-    auto = auto_rig(face, sets)
+    with stages("rig", len(sets) + 2, args.quiet) as step:
+        step("the face and its landmarks")
+        face = load_face(args)
+        auto = auto_rig(face, sets, progress=step)
+        step(f"writing {out.name}")
+        written, left_out = write_rigged(out, auto, compact=args.compact, meta=_meta(args, face),
+                                         vrm_version=1 if args.vrm is None else args.vrm)
     counts = ", ".join(f"{name} {len(names)}" for name, names in auto.sets.items())
-    meta = {"name": args.title or shown(face.name, VRM_TEXT_LIMIT), "authors": [args.author],
-            **(args.license or {})}
-    written, left_out = write_rigged(out, auto, compact=args.compact, meta=meta,
-                                     vrm_version=1 if args.vrm is None else args.vrm)
     if left_out:
         print("VRM presets left out: " + "; ".join(f"{p} ({why})" for p, why in left_out.items()), file=sys.stderr)
     print(f"{len(auto.shapes)} morph targets ({counts})")
@@ -143,6 +157,7 @@ def register(sub) -> None:
     _axes(p)
     p.add_argument("--set", default="all", metavar="SETS",
                    help=f"comma-separated sets to write: {','.join(RIG_SETS)} or all")
+    p.add_argument("--quiet", action="store_true", help="no progress on the terminal")
     p.add_argument("--compact", action="store_true",
                    help="quantised .glb (KHR_mesh_quantization): smaller, for delivery")
     p.add_argument("--head-mesh", metavar="NAME",
