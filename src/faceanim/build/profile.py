@@ -23,13 +23,11 @@ centre is at +0.5). Accuracy on side renders of a real head scan: tests/test_pro
 from __future__ import annotations
 
 import itertools
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from faceanim.errors import LandmarkError
-from faceanim.io.files import native_stderr_quiet
 
 MIN_SIZE = 32  # pixels per side of an image
 MAX_SIZE = 16384
@@ -76,16 +74,6 @@ def _as_image(image) -> np.ndarray:
     return np.ascontiguousarray(img[..., :3])
 
 
-def _mediapipe():
-    os.environ.setdefault("GLOG_minloglevel", "2")
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
-    try:
-        import mediapipe as mp
-    except ImportError:
-        raise LandmarkError("profile points need mediapipe==0.10.21 (pip install mediapipe==0.10.21)") from None
-    return mp
-
-
 def _resized(img: np.ndarray, longest: int) -> tuple[np.ndarray, float]:
     """``img`` shrunk so its longest side is at most ``longest``, and the factor (new / old)."""
     import cv2
@@ -113,16 +101,16 @@ def _person_probability(img: np.ndarray) -> np.ndarray:
     """
     import cv2
 
-    mp = _mediapipe()
+    from faceanim.face.mediapipe import selfie_segmenter
+
     h, w = img.shape[:2]
     small, _ = _resized(img, SEGMENTATION_SIZE)
     mirror = np.ascontiguousarray(small[:, ::-1])
     probs = []
-    with native_stderr_quiet():
-        for model in (0, 1):
-            with mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=model) as seg:
-                probs.append(seg.process(small).segmentation_mask)
-                probs.append(seg.process(mirror).segmentation_mask[:, ::-1])
+    for model in (0, 1):
+        with selfie_segmenter(model, "profile points") as segment:
+            probs.append(segment(small))
+            probs.append(segment(mirror)[:, ::-1])
     p = np.mean(probs, axis=0).astype(np.float32)
     if p.shape != (h, w):
         p = cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR)
@@ -552,14 +540,6 @@ def _find_points(curve: np.ndarray, facing: int, top: int, length: float,
 _MIDLINE = (4, 168, 152, 10, 0, 17, 2, 6)
 
 
-def _face_mesh(img: np.ndarray, fm) -> np.ndarray | None:
-    result = fm.process(np.ascontiguousarray(img))
-    if not result.multi_face_landmarks:
-        return None
-    h, w = img.shape[:2]
-    return np.array([[q.x * w, q.y * h, q.z * w] for q in result.multi_face_landmarks[0].landmark])
-
-
 # a frontal face's MediaPipe points (x right, y up, z forward; eye distance 1, origin at the nose
 # tip): the mean of FaceWarehouse's neutral scan and the ICT head, made left-right symmetric
 FRONTAL = {
@@ -600,13 +580,13 @@ def face_yaw(image) -> float | None:
     to 80 degrees (renders of FaceWarehouse and ICT heads).
     """
     img, _ = _resized(_as_image(image), SEGMENTATION_SIZE * 2)
-    mp = _mediapipe()
-    with native_stderr_quiet(), mp.solutions.face_mesh.FaceMesh(
-            static_image_mode=True, max_num_faces=1, refine_landmarks=True, min_detection_confidence=0.3) as fm:
-        p = _face_mesh(img, fm)
+    from faceanim.face.mediapipe import FaceMesh
+
+    with FaceMesh(video=False, confidence=0.3, what="profile points") as mesh:
+        p = mesh(img)
         if p is None:
             return None
-        pm = _face_mesh(img[:, ::-1], fm)
+        pm = mesh(img[:, ::-1])
     if pm is None:
         return None
     yaw = 0.5 * (abs(_yaw(p)) + abs(_yaw(pm)))
@@ -633,14 +613,14 @@ def _face_detection(img: np.ndarray) -> dict | None:
     busy and noisy backgrounds: 60 of 60 with the short-range model), its nose keypoint within
     0.3 eye distances of the nose tip, the nose on the facing side of the ears.
     """
-    mp = _mediapipe()
+    from faceanim.face.mediapipe import face_detector
+
     small, s = _resized(img, WORK_SIZE)
     for model in (0, 1):  # short range (a face filling the picture), then full range
-        with native_stderr_quiet(), mp.solutions.face_detection.FaceDetection(
-                model_selection=model, min_detection_confidence=0.3) as fd:
-            result = fd.process(small)
-        if result.detections:
-            best = max(result.detections, key=lambda d: d.score[0])
+        with face_detector(model, 0.3, "profile points") as detect:
+            found = detect(small)
+        if found:
+            best = found[0]
             h, w = small.shape[:2]
             kp = np.array([[k.x * w, k.y * h] for k in best.location_data.relative_keypoints]) / s
             return {"nose": kp[2], "ears": 0.5 * (kp[4] + kp[5]), "score": float(best.score[0]),

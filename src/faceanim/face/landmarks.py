@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.errors import LandmarkError, shown
-from faceanim.io.files import native_stderr_quiet, read_json, write_json
+from faceanim.io.files import read_json, write_json
 
 # the basic 22-point set used by later modules (name, MediaPipe index)
 BASIC22 = (
@@ -311,22 +311,18 @@ def detect_landmarks_in_image(rgb: np.ndarray, scales=DETECTION_SCALES, agreemen
     img = np.ascontiguousarray(np.asarray(rgb)[..., :3], dtype=np.uint8)
     if img.ndim != 3 or min(img.shape[:2]) < 32:
         raise LandmarkError(f"expected an RGB image of at least 32x32 pixels, got shape {img.shape}")
-    os.environ.setdefault("GLOG_minloglevel", "2")
-    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
-    try:
-        import mediapipe as mp
-    except ImportError:
-        raise LandmarkError("landmark detection needs mediapipe==0.10.21 (pip install mediapipe==0.10.21)") from None
+    from faceanim.face.mediapipe import FaceMesh
+
     h, w = img.shape[:2]
     found = []
-    with native_stderr_quiet(), mp.solutions.face_mesh.FaceMesh(
-            static_image_mode=True, max_num_faces=1, refine_landmarks=True, min_detection_confidence=0.3) as fm:
+    with FaceMesh(video=False, confidence=0.3) as mesh:
         for s in scales:
             view, dx, dy = (img, 0, 0) if s == 1 else _zoom(img, s)
-            result = fm.process(view)
-            if not result.multi_face_landmarks:
+            p = mesh(view)
+            if p is None:
                 continue
-            p = np.array([[q.x, q.y, q.z] for q in result.multi_face_landmarks[0].landmark], dtype=np.float64)
+            vh, vw = view.shape[:2]  # back to MediaPipe's normalised units of the whole image
+            p = p / np.array([vw, vh, vw])
             p[:, 0] = (p[:, 0] * w + dx) / (w * s)
             p[:, 1] = (p[:, 1] * h + dy) / (h * s)
             found.append(p)

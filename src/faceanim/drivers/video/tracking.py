@@ -151,30 +151,15 @@ class FaceTracker:
     the camera, scaled by the image width), or None where no face is found. A context manager."""
 
     def __init__(self):
-        import os
+        from faceanim.face.mediapipe import FaceMesh
 
-        from faceanim.io.files import native_stderr_quiet
-
-        os.environ.setdefault("GLOG_minloglevel", "2")
-        os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
-        try:
-            import mediapipe as mp
-        except ImportError:
-            raise LandmarkError("video tracking needs mediapipe==0.10.21 (pip install mediapipe==0.10.21)") from None
-        with native_stderr_quiet():
-            self._fm = mp.solutions.face_mesh.FaceMesh(
-                static_image_mode=False, max_num_faces=1, refine_landmarks=True,
-                min_detection_confidence=0.5, min_tracking_confidence=0.5)
+        self._mesh = FaceMesh(video=True, what="video tracking")
 
     def __call__(self, frame: np.ndarray) -> np.ndarray | None:
-        h, w = frame.shape[:2]
-        result = self._fm.process(np.ascontiguousarray(frame))
-        if not result.multi_face_landmarks:
-            return None
-        return np.array([[p.x * w, p.y * h, p.z * w] for p in result.multi_face_landmarks[0].landmark])
+        return self._mesh(frame)
 
     def close(self) -> None:
-        self._fm.close()
+        self._mesh.close()
 
     def __enter__(self):
         return self
