@@ -234,8 +234,8 @@ if [ ! -x .venv/bin/python ] || ! .venv/bin/python -c '' >/dev/null 2>&1; then
   "$PY" -m venv .venv || die "could not create .venv with $PY -m venv (if .venv is left from another Python, remove it and run again)"
   .venv/bin/python -m pip install -q --upgrade pip || note "could not upgrade pip in .venv; going on with its own"
 fi
-.venv/bin/python -m pip install -q -e '.[test]' \
-  || die "pip could not install faceanim and its test dependencies into .venv (.venv/bin/python -m pip install -e '.[test]'); see pip's messages above"
+.venv/bin/python -m pip install -q -e '.[all,test]' \
+  || die "pip could not install faceanim and its test dependencies into .venv (.venv/bin/python -m pip install -e '.[all,test]'); see pip's messages above"
 
 # ---------------------------------------------------------------------------------------------
 # The Khronos glTF validator and three.js with three-vrm (optional), pinned in tools/package.json;

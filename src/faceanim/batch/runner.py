@@ -51,7 +51,10 @@ class Summary:
 
 
 def _client(scheduler: str | None, workers: int | None):
-    from distributed import Client, LocalCluster
+    from faceanim.extras import require
+
+    distributed = require("distributed", "faceanim batch")
+    Client, LocalCluster = distributed.Client, distributed.LocalCluster
 
     if scheduler:
         try:

@@ -25,6 +25,10 @@ def _cmd_live(args) -> None:
     if args.mouth is not None and not (picture and args.audio is not None):
         raise CommandError("--mouth chooses between a video's mouth and a sound's; give --audio with --video or "
                            "--camera")
+    if args.audio is not None:
+        from faceanim.extras import require
+
+        require("pocketsphinx", "live lip sync (--audio)")
     # every sink checked before the source is opened (a camera light should not flash for a typo)
     views = [t for t in args.to if t == "viewer" or t.startswith("viewer:")]
     if args.face is not None and not views:

@@ -91,8 +91,10 @@ class VmcSink(UdpSink):
     52 curves by their perfect-sync names."""
 
     def __init__(self, spec: str):
+        from faceanim.extras import require
         from faceanim.io.vmc import DEFAULT_PORT
 
+        require("pythonosc", "faceanim live --to vmc://")
         family, addr = _address(spec, "vmc", DEFAULT_PORT)
         super().__init__(family, addr, f"vmc://{addr[0]}:{addr[1]}")
 

@@ -83,7 +83,9 @@ class ViewerSink(Sink):
     """The viewer and its live stream (see the module docstring); ``url`` is the page's address."""
 
     def __init__(self, spec: str, face=None):
-        from websockets.sync.server import serve
+        from faceanim.extras import require
+
+        serve = require("websockets.sync.server", "faceanim live --to viewer").serve
 
         from faceanim.viewer.server import HOST, Viewer, ViewerServer, check_model, check_vendor
 

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.errors import FaceAnimError
+from faceanim.extras import require
 from faceanim.errors import shown as _shown
 from faceanim.io.audio import check_rate, read_audio, resample, write_wav
 from faceanim.limits import MAX_DURATION, MAX_TEXT
@@ -216,7 +217,7 @@ def _espeak_wav(exe: str, text: str, out: Path, voice: str, speed: int) -> None:
 
 
 def _decoder():
-    from pocketsphinx import Decoder
+    Decoder = require("pocketsphinx", "aligning speech with its transcript").Decoder
 
     return Decoder(samprate=SAMPLE_RATE, loglevel="FATAL")
 
@@ -296,9 +297,8 @@ def recognise_phones(audio, rate: int | None = None) -> list[Phone]:
     mouth needs only the phone classes and their times."""
     import os
 
-    import pocketsphinx
-    from pocketsphinx import Decoder
-
+    pocketsphinx = require("pocketsphinx", "hearing phones in speech without a transcript")
+    Decoder = pocketsphinx.Decoder
     x, rate = _samples(audio, rate)
     if float(np.sqrt(np.mean(np.square(x, dtype=np.float64)))) < SILENT_RMS:
         raise SpeechError("no speech was heard in the audio (it is silent); give a recording of someone speaking")

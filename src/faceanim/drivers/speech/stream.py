@@ -44,8 +44,10 @@ class PhoneStream:
     still being heard)."""
 
     def __init__(self):
-        import pocketsphinx
-        from pocketsphinx import Decoder
+        from faceanim.extras import require
+
+        pocketsphinx = require("pocketsphinx", "live lip sync")
+        Decoder = pocketsphinx.Decoder
 
         model = Path(os.path.dirname(pocketsphinx.__file__)) / "model" / "en-us"
         try:

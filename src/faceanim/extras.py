@@ -1,0 +1,33 @@
+"""faceanim's optional parts (``pip install 'faceanim[speech,live,batch]'``): a command that needs
+one that is not installed says which, in one line, before it starts.
+
+- ``speech``: pocketsphinx (aligning recorded speech with its transcript, hearing phones without
+  one, live lip sync); ``say TEXT`` itself needs only espeak-ng;
+- ``live``: python-osc and websockets (``faceanim live``'s VMC and browser sinks), and pocketsphinx;
+- ``batch``: Dask's distributed scheduler and bokeh (``faceanim batch``).
+
+``bash scripts/setup.sh`` installs them all.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from faceanim.errors import FaceAnimError
+
+EXTRAS = {"pocketsphinx": "speech", "pythonosc": "live", "websockets": "live", "distributed": "batch",
+          "dask": "batch"}
+
+
+class MissingExtra(FaceAnimError):
+    """An optional part of faceanim that a command needs is not installed."""
+
+
+def require(module: str, what: str):
+    """``module`` imported, or :class:`MissingExtra` saying that ``what`` needs its extra."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        extra = EXTRAS.get(module.split(".")[0], "all")
+        raise MissingExtra(f"{what} needs faceanim's '{extra}' extra, which is not installed: "
+                           f"pip install 'faceanim[{extra}]' (or bash scripts/setup.sh)") from None
