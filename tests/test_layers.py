@@ -1,6 +1,6 @@
 """Imports go one way (docs/architecture.md): a module never imports a layer above its own.
 
-    base (errors, limits, io.files, standards)  <-  face.mesh  <-  io (mesh, glTF, audio, .fap files)
+    base (errors, limits, io.files, standards, catalogue, extras, version)  <-  face.mesh  <-  io (mesh, glTF, audio, .fap files)
         <-  deform, render  <-  face  <-  build  <-  rig | drivers  <-  player, perform, autorig
         <-  demo, viewer, batch  <-  cli
 
@@ -19,7 +19,7 @@ SRC = Path(faceanim.__file__).parent
 
 # module prefix -> rank; a module may import modules of its own rank or lower
 RANKS = [
-    ("faceanim.errors", 0), ("faceanim.limits", 0), ("faceanim.io.files", 0), ("faceanim.standards", 0), ("faceanim.catalogue", 0), ("faceanim.version", 0),
+    ("faceanim.errors", 0), ("faceanim.limits", 0), ("faceanim.io.files", 0), ("faceanim.standards", 0), ("faceanim.catalogue", 0), ("faceanim.version", 0), ("faceanim.extras", 0),
     ("faceanim.face.mesh", 1),
     ("faceanim.face.faps", 2), ("faceanim.io", 2),
     ("faceanim.deform.handles", 5),  # reads a handle file: 2D picks are cast onto the face
