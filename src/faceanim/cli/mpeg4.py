@@ -223,6 +223,9 @@ def _cmd_say(args) -> None:
         read_audio(args.audio, "recorded speech")
     suffix = Path(args.output).suffix.lower()
     if suffix in CUE_SUFFIXES:
+        if args.face or args.landmarks:
+            raise CommandError(f"a {suffix} output holds mouth cues, not a face: drop --face/--landmarks, or write "
+                               ".glb or .mp4")
         if args.expression:
             raise CommandError("mouth cues (.tsv, .json) show the mouth's shapes only; leave out --expression")
         with tempfile.TemporaryDirectory() as tmp:
