@@ -215,3 +215,27 @@ def test_perform_writes_rhubarb_cues_of_the_performers_mouth(tmp_path):
     assert doc["metadata"]["soundFile"] == str(clip.resolve())
     assert 2.9 <= doc["metadata"]["duration"] <= 3.2
     assert len({c["value"] for c in doc["mouthCues"]}) >= 3  # the mouth moves through several shapes
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.binary(max_size=300) | st.text(max_size=200).map(str.encode) |
+       st.sampled_from([b'{"metadata": {"soundFile": "x.wav"}}', b'{"metadata": {"soundFile": "../x.wav"}}',
+                        b'{"metadata": {"soundFile": "link.wav"}}', b'{"metadata": {"soundFile": 7}}']))
+def test_the_cue_sound_never_names_a_file_faceanim_did_not_write(content):
+    """Whatever an existing cues.json holds, the sound goes beside it under a new name, or replaces
+    only a plain .wav file that JSON names in the same folder (faceanim's own, from before)."""
+    import os
+    import tempfile
+    from pathlib import Path
+
+    from faceanim.io.rhubarb import cue_sound
+
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        (folder / "cues.json").write_bytes(content)
+        (folder / "x.wav").write_bytes(b"RIFF")
+        os.symlink("/etc/hostname", folder / "link.wav")
+        got = cue_sound(folder / "cues.json")
+        assert got.parent == folder and got.suffix == ".wav"
+        named_x = got.name == "x.wav" and b'"soundFile": "x.wav"' in content
+        assert not os.path.lexists(got) or named_x
