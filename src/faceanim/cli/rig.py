@@ -174,6 +174,6 @@ def register(sub) -> None:
                         "modification, allowRedistribution, allowExcessivelyViolentUsage, ...) (default: private)")
     p.add_argument("--title", type=_meta_text("--title"), help="the avatar's name in a .vrm (default: the mesh's)")
     p.add_argument("--author", type=_meta_text("--author"), default="unknown",
-                   help="the author written in a .vrm's meta (default: unknown)")
+                   help="the author written in a .vrm's meta")
     add_output(p, [".glb", ".vrm"])
     p.set_defaults(func=_cmd_rig)

@@ -252,9 +252,11 @@ def register(sub) -> None:
                                    "database unless --db), retarget its deformation bases onto the face (the "
                                    "default face unless --face) and write .glb (the face's ARKit blendshapes as "
                                    "morph targets, Apple's names, weights 0..1, and the head's rotation animated; "
-                                   "--bases: one target per deformation basis instead), .mp4 (the video and the face side "
-                                   "by side, with the video's sound) or .csv (Live Link Face: ARKit's 52 curves "
-                                   "and the head angles).")
+                                   "--bases: one target per deformation basis instead), .mp4 (the video and the face "
+                                   "side by side, with the video's sound), .csv (Live Link Face: ARKit's 52 curves "
+                                   "and the head angles) or .tsv/.json (Rhubarb Lip Sync's mouth cues). A --face "
+                                   ".glb/.vrm avatar whose morph targets carry ARKit's names (any spelling) is played "
+                                   "by name instead: the same avatar with the performance as one more animation.")
     p.add_argument("video", metavar="VIDEO", help="a video file of a performer (MP4, MOV, MKV, AVI, WebM)")
     add_face(p, positional=False)
     p.add_argument("--db", metavar="MOTION.npz", help="a motion database from faceanim mocap build "
