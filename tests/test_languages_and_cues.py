@@ -239,3 +239,19 @@ def test_the_cue_sound_never_names_a_file_faceanim_did_not_write(content):
         assert got.parent == folder and got.suffix == ".wav"
         named_x = got.name == "x.wav" and b'"soundFile": "x.wav"' in content
         assert not os.path.lexists(got) or named_x
+
+
+@has_espeak
+def test_a_transcript_word_outside_the_dictionary_is_aligned_by_espeaks_pronunciation():
+    """'amiable' spelt as the dictionary does not know it ('aymiabul'): espeak-ng's pronunciation is
+    added, and its closures (m, b) land where the dictionary word's do, within 30 ms."""
+    from faceanim.drivers.speech.phonemes import align, espeak_pronunciations
+
+    wav = need(DATA / "speech-librivox" / "clip-0930.wav")
+    assert espeak_pronunciations(["aymiabul", "--help"]) == {"aymiabul": "AY M IH AE B AH L"}  # an option: never run
+    known = align(wav, "he might even have been made amiable himself")
+    new = align(wav, "he might even have been made aymiabul himself")
+    for phone in ("M", "B"):
+        (a,) = [p for p in known if p.word == "amiable" and p.phone == phone]
+        (b,) = [p for p in new if p.word == "aymiabul" and p.phone == phone]
+        assert abs(a.start - b.start) < 0.03 and abs(a.end - b.end) < 0.03, phone

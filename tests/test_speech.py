@@ -88,8 +88,17 @@ def test_alignment_of_real_speech():
     assert sum(p.phone != "SIL" for p in phones) > 15
     with pytest.raises(SpeechError, match="too short|match"):
         align(wav, (SPEECH / "clip-0880.txt").read_text() * 8)  # far more words than the audio holds
-    with pytest.raises(SpeechError, match="does not know"):
+    with pytest.raises(SpeechError, match="match"):  # words espeak-ng pronounces, but not these
         align(wav, "zxqvbn wordz")
+    from faceanim.drivers.speech import phonemes
+
+    real_which = phonemes.shutil.which
+    phonemes.shutil.which = lambda name: None  # without espeak-ng: words outside the dictionary are named
+    try:
+        with pytest.raises(SpeechError, match="does not know: zxqvbn, wordz"):
+            align(wav, "zxqvbn wordz")
+    finally:
+        phonemes.shutil.which = real_which
     with pytest.raises(SpeechError, match="match"):
         align(wav, (SPEECH / "clip-0930.txt").read_text())  # another clip's words
     with pytest.raises(SpeechError, match="it is silent"):

@@ -242,6 +242,38 @@ def _samples(audio, rate) -> tuple[np.ndarray, int]:
     return x, rate
 
 
+MAX_NEW_WORDS = 200  # words outside the dictionary a transcript may have (each asks espeak-ng once)
+
+
+def espeak_pronunciations(words: list[str], voice: str = DEFAULT_VOICE) -> dict[str, str]:
+    """ARPAbet pronunciations (space-separated, as the pocketsphinx dictionary has them) that
+    espeak-ng gives words the dictionary lacks: its IPA (``espeak-ng --ipa``) read phone by phone
+    through :func:`faceanim.standards.ipa.arpabet`. Words espeak-ng cannot say, or when it is not
+    installed, are left out (the caller refuses them by name)."""
+    exe = shutil.which("espeak-ng")
+    out: dict[str, str] = {}
+    if exe is None or not words:
+        return out
+    for word in words[:MAX_NEW_WORDS]:
+        if not re.fullmatch(r"[a-z0-9']+", word):  # transcript words only (words_of): never an option
+            continue
+        try:
+            result = subprocess.run([exe, "-q", "-v", voice, "--ipa", "--sep=_", word], capture_output=True,
+                                    text=True, timeout=30, check=False)
+        except (OSError, subprocess.TimeoutExpired):
+            return out
+        phones = []
+        for ipa in result.stdout.replace(" ", "_").split("_"):
+            names = ipa_arpabet(ipa) if ipa.strip() else []
+            if names is None:
+                phones = []
+                break
+            phones += [n for n in names if n != "SIL"]
+        if result.returncode == 0 and phones:
+            out[word] = " ".join(phones)
+    return out
+
+
 def align(audio, transcript: str, rate: int | None = None, decoder=None) -> list[Phone]:
     """Timed phones of ``transcript`` in ``audio`` (an audio file - WAV, FLAC, OGG, ... - or samples
     with their ``rate``); ``decoder`` reuses a pocketsphinx decoder (loading the model takes ~0.3 s)."""
@@ -251,6 +283,9 @@ def align(audio, transcript: str, rate: int | None = None, decoder=None) -> list
         raise SpeechError("no speech was heard in the audio (it is silent); give a recording of the transcript spoken")
     dec = decoder or _decoder()
     unknown = [w for w in dict.fromkeys(words) if dec.lookup_word(w) is None]
+    for word, pron in espeak_pronunciations(unknown).items():  # names, rare and new words
+        dec.add_word(word, pron, True)
+    unknown = [w for w in unknown if dec.lookup_word(w) is None]
     if unknown:
         raise SpeechError(f"the pronunciation dictionary does not know: {', '.join(map(_shown, unknown[:8]))}; "
                           "spell numbers and abbreviations out as words")
@@ -538,6 +573,9 @@ def say_word_by_word(text: str, wav_path, voice: str = DEFAULT_VOICE, speed: int
     tokens = re.findall(r"[A-Za-z0-9']+|[,;:.?!]", text)
     tokens = [t for t in tokens if t in PAUSES or t.strip("'")]
     dec = _decoder()
+    new = [t.lower().strip("'") for t in tokens if t not in PAUSES and dec.lookup_word(t.lower().strip("'")) is None]
+    for word, pron in espeak_pronunciations(list(dict.fromkeys(new)), voice).items():
+        dec.add_word(word, pron, True)
     for token in tokens:  # every word known before any synthesis
         word = token.lower().strip("'")
         if token not in PAUSES and dec.lookup_word(word) is None:
