@@ -151,14 +151,15 @@ def rig_and_curves():
 
 @pytest.mark.parametrize("quantize", [False, True], ids=["float", "quantized"])
 def test_full_rig_imports_into_blender(blender, rig_and_curves, tmp_path, quantize):
-    """Every control faceanim has on the default face (95 morph targets: AUs with halves, FACS
-    emotions, visemes, MPEG-4 expressions), animated, plain and with KHR_mesh_quantization."""
+    """Every control faceanim has on the default face (197 morph targets: ARKit's 52, visemes, Ready
+    Player Me's extras, AUs with halves, emotions, FAPs), animated, plain and with
+    KHR_mesh_quantization."""
     from faceanim.player import write_rig_gltf
 
     rig, curves = rig_and_curves
     glb = write_rig_gltf(rig, curves, tmp_path / "rig.glb", fps=FPS, quantize=quantize)
     report, arrays = check(blender, glb)
-    assert len(report["meshes"][0]["shape_keys"]) == rig.n_controls == 95
+    assert len(report["meshes"][0]["shape_keys"]) == rig.n_controls == 197
     assert report["extensions"] == (["KHR_mesh_quantization"] if quantize else [])
     assert_imports_as_written(report, arrays, glb)
     # the whole evaluated mesh at the checked frames is the file's (weights applied, node scale)
