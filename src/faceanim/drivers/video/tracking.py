@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from faceanim.errors import LandmarkError
+from faceanim.face.mediapipe import FaceMesh
 from faceanim.face.controls import (  # noqa: F401 (find_neutral: part of this module's API)
     CONTROL_NAMES,
     FEATURE_NAMES,
@@ -145,27 +146,13 @@ def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np
     return pose, frontal[idx, :2]
 
 
-class FaceTracker:
+class FaceTracker(FaceMesh):
     """MediaPipe's face mesh in video mode (refined: 478 landmarks with the irises), one frame at a
     time: ``tracker(rgb)`` -> (478, 3) landmarks in pixels with depth (x right, y down, z away from
     the camera, scaled by the image width), or None where no face is found. A context manager."""
 
     def __init__(self):
-        from faceanim.face.mediapipe import FaceMesh
-
-        self._mesh = FaceMesh(video=True, what="video tracking")
-
-    def __call__(self, frame: np.ndarray) -> np.ndarray | None:
-        return self._mesh(frame)
-
-    def close(self) -> None:
-        self._mesh.close()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
+        super().__init__(video=True, what="video tracking")
 
 
 def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | None = None,
