@@ -33,7 +33,8 @@ MAX_TEXT = 256  # bytes of a device id or subject name (the app's are a UUID and
 @dataclass
 class LiveLinkFrame:
     """One packet: ``device`` id, ``subject`` name, ``frame`` number, ``subframe`` (0..1),
-    ``rate`` (numerator, denominator) and ``values`` {name: value} in :data:`~faceanim.standards.arkit.LIVE_LINK_ORDER`."""
+    ``rate`` (numerator, denominator) and ``values`` {name: value} in
+    :data:`~faceanim.standards.arkit.LIVE_LINK_ORDER`."""
 
     device: str
     subject: str

@@ -319,7 +319,8 @@ def write_vrm(path: str | os.PathLike, mesh: Mesh, blendshapes: Mapping[str, np.
     position = {name: np.asarray(p) for name, _, p in SKELETON}
     for name, parent, p in SKELETON:
         bone_index[name] = len(nodes)
-        local = (np.asarray(p) - (position[parent] if parent else 0.0)) * (1.0 if version == 1 else HALF_TURN.diagonal())
+        local = np.asarray(p) - (position[parent] if parent else 0.0)
+        local = local if version == 1 else local * HALF_TURN.diagonal()
         nodes.append(g.Node(name=name, translation=[round(float(x), 6) for x in local], children=[]))
         nodes[bone_index[parent] if parent else root].children.append(bone_index[name])
     nodes[bone_index["head"]].children.append(mesh_node)

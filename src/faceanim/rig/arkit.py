@@ -13,8 +13,8 @@ sum is the ARKit shape.
 Each displacement is rebuilt on the face's own surface from the patterns of ICT's artist-made
 shapes (learned, not copied: a face that is not ICT's gets its own). :func:`arkit_shapes` adds
 what ICT's shapes lack: the ``eyeLook*`` shapes also turn the eyeballs, by the angles a real Live
-Link Face take records at weight 1 (:data:`~faceanim.standards.arkit.LOOK_ANGLES`). ``faceanim rig`` and ``faceanim arkit
-play`` both use it.
+Link Face take records at weight 1 (:data:`~faceanim.standards.arkit.LOOK_ANGLES`). ``faceanim
+rig`` and ``faceanim arkit play`` both use it.
 """
 
 from __future__ import annotations

@@ -40,7 +40,8 @@ def speak(text: str, voice: str, rate: int, out_path: str, ipa: bool = False) ->
         lib = ctypes.CDLL(name)
     except OSError:
         sys.exit(3)
-    sample_rate = int(lib.espeak_Initialize(SYNCHRONOUS, 0, None, PHONEME_EVENTS | (PHONEME_IPA if ipa else 0) | DONT_EXIT))
+    options = PHONEME_EVENTS | (PHONEME_IPA if ipa else 0) | DONT_EXIT
+    sample_rate = int(lib.espeak_Initialize(SYNCHRONOUS, 0, None, options))
     if sample_rate <= 0:
         sys.exit(3)
     events = []

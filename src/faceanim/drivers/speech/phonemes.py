@@ -1,12 +1,15 @@
 """Timed phonemes: forced alignment of speech audio with its transcript, and speech synthesis.
 
 Alignment uses pocketsphinx (its wheel ships a US English acoustic model and dictionary): the
-transcript's words are looked up (unknown words are refused by name), the audio is aligned at
-10 ms frames, and the ARPAbet phones come back with their start and end times. Synthesis runs
-espeak-ng (installed by ``scripts/setup.sh``) to a WAV file; the synthesized audio is then
-aligned the same way, so text and recorded speech give timings by one method.
+transcript's words are looked up (a word the dictionary lacks gets espeak-ng's pronunciation,
+:func:`espeak_pronunciations`; without espeak-ng it is refused by name), the audio is aligned at
+10 ms frames, and the ARPAbet phones come back with their start and end times. Synthesis
+(:func:`say_timed`) runs espeak-ng (installed by ``scripts/setup.sh``) through its library and
+takes each phone and its time from espeak-ng's own phoneme events, read through their IPA
+(:mod:`faceanim.standards.ipa`): any word, any voice. Without the library, the words are spoken one
+by one by the espeak-ng program and aligned (:func:`say_word_by_word`).
 
-Audio is read, written and resampled by :mod:`faceanim.io.audio` (libsndfile). espeak-ng's voice
+Audio is read, written and resampled by :mod:`faceanim.io.audio` (libsndfile, libsoxr). espeak-ng's voice
 is checked against the voices it lists before it runs, and its own output is never shown in an
 error (it is logged at debug level): a voice "name" can be any path, and espeak-ng prints the
 lines of a file it cannot parse as a voice.
@@ -27,8 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.errors import FaceAnimError
-from faceanim.extras import require
 from faceanim.errors import shown as _shown
+from faceanim.extras import require
 from faceanim.io.audio import check_rate, read_audio, resample, write_wav
 from faceanim.limits import MAX_DURATION, MAX_TEXT
 from faceanim.standards.ipa import arpabet as ipa_arpabet
@@ -441,8 +444,9 @@ def _library_speech(text: str, voice: str, speed: int) -> tuple[np.ndarray, int,
         runs = []
         try:
             for ipa in (False, True):
-                proc = subprocess.Popen([sys.executable, espeak_lib.__file__, str(Path(tmp) / f"speech{int(ipa)}.raw")],
-                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                raw = str(Path(tmp) / f"speech{int(ipa)}.raw")
+                proc = subprocess.Popen([sys.executable, espeak_lib.__file__, raw], stdin=subprocess.PIPE,
+                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
                 runs.append((proc, json.dumps({"text": text, "voice": voice, "rate": speed, "ipa": ipa})))
             answers = [proc.communicate(request, timeout=ESPEAK_TIMEOUT) + (proc.returncode,) for proc, request in runs]
         except (OSError, subprocess.TimeoutExpired) as exc:
