@@ -47,7 +47,7 @@ def test_retargeting_onto_a_moved_copy_is_the_jacobian_times_the_source(db):
     """The generic head scaled by 100, turned by 30 degrees and moved: the landmark spline is that
     similarity (its Jacobian s R everywhere), so every retargeted basis is exactly s R times the
     source basis (eq. 5), vertex for vertex."""
-    from faceanim.rig.performance import retarget, source_bases
+    from faceanim.rig.retarget import retarget, source_bases
 
     head = generic_head()
     a, t = _turned(30.0, 100.0, [5.0, -3.0, 2.0])
@@ -63,7 +63,7 @@ def test_source_bases_at_the_markers_are_the_database_bases(db):
     """Each basis written as the generic head's shapes reproduces the database's marker basis
     (the bases are orthonormal, so the misfit is a fraction of a unit vector) for the strongest
     bases, which carry almost all of the motion."""
-    from faceanim.rig.performance import source_bases
+    from faceanim.rig.retarget import source_bases
 
     dense = source_bases(db.basis_curves, db.curve_names)[:, db.marker_vertices]
     misfit = np.linalg.norm(dense - db.bases, axis=(1, 2))
@@ -83,7 +83,7 @@ def test_retargeting_onto_the_ict_head_matches_its_own_shapes(db):
     on a render) has its own 53 ARKit shapes: each basis written with them is the right answer.
     The retargeted bases are within 15% of it on the skin (by the landmark spline's smoothing; an
     exact spline through the detected landmarks was 56% off); the teeth within 10%."""
-    from faceanim.rig.performance import retarget
+    from faceanim.rig.retarget import retarget
 
     face = Face.load(ICT / "generic_neutral_mesh.obj")
     n0 = face.mesh.vertices
@@ -355,7 +355,7 @@ def test_face_regions_split_each_basis_exactly(db):
     out: the blinks are the rig's own two controls), and the jaw's basis lies almost all in the
     lower copy, the brows' in the upper."""
     from faceanim.perform import EYE_CONTROLS, EYE_CURVES, face_regions, performance_rig
-    from faceanim.rig.performance import retarget
+    from faceanim.rig.retarget import retarget
 
     regions = face_regions()
     np.testing.assert_allclose(regions["lower"] + regions["upper"], 1.0)
@@ -414,7 +414,7 @@ def test_retargeted_bases_span_another_persons_real_expressions(db):
     energy."""
     from faceanim.face.frame import similarity
     from faceanim.io.meshio import load_mesh
-    from faceanim.rig.performance import retarget
+    from faceanim.rig.retarget import retarget
 
     face = Face.load(FW / "pose_0.obj")
     v0 = face.mesh.vertices

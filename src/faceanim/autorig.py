@@ -6,7 +6,7 @@ The sets (:data:`RIG_SETS`), each built from the input mesh and its landmarks al
 - ``arkit``: Apple ARKit's blendshapes with Apple's exact names (``eyeBlinkLeft`` ... ; Left and
   Right are the subject's own sides). Displacement patterns learned from ICT FaceKit's
   artist-made ARKit shapes (the generic head) are carried onto the face by the retargeting of
-  :mod:`faceanim.rig.performance` (the face's registration: the generic head's morphable model
+  :mod:`faceanim.rig.retarget` (the face's registration: the generic head's morphable model
   fitted and moved onto the surface, dense correspondence part by part, motion carried by the
   registration's similarity): no shape is copied, every displacement is rebuilt on the face's
   own surface. The ``eyeLook*`` shapes also turn the eyeballs when the mesh has them (ICT's own

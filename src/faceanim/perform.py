@@ -11,7 +11,7 @@ The four components, each in its own layer, meet here:
    and the upper face each from its own controls, each basis split between them;
    ``whole_face=True`` is the paper's one search);
    ``raw=True`` maps each frame's controls linearly instead (the baseline a user can compare with);
-4. retargeting (:mod:`faceanim.rig.performance`): the bases moved onto the face once; a frame is
+4. retargeting (:mod:`faceanim.rig.retarget`): the bases moved onto the face once; a frame is
    then L weights, whatever the face's vertex count.
 
 :func:`perform` does 3 on a tracking; :func:`performance_rig` does 4; :func:`write_performance`
@@ -33,7 +33,7 @@ from faceanim.drivers.video.tracking import Tracking
 from faceanim.errors import FaceAnimError, shown
 from faceanim.face.controls import CONTROL_NAMES
 from faceanim.face.face import Face
-from faceanim.rig.performance import retarget
+from faceanim.rig.retarget import retarget
 from faceanim.rig.rig import Rig
 
 WINDOW, K, OVERLAP = 5, 30, 2  # segment length, neighbours, segments blended (the paper: 20, -, 5)

@@ -3,7 +3,7 @@ recordings.
 
 The generic head (ICT FaceKit) carries artist-made shapes for 51 of ARKit's 52 blendshapes, and a
 ``tongueOut`` faceanim makes from the tongue's geometry (``scripts/build_generic_head.py``).
-:func:`arkit_rig` moves them onto any face with the retargeting of :mod:`faceanim.rig.performance`
+:func:`arkit_rig` moves them onto any face with the retargeting of :mod:`faceanim.rig.retarget`
 (the face's registration: dense correspondence part by part, motion carried by its similarity:
 Chai et al. 2003, section 5, applied to named shapes, as Noh and Neumann's expression cloning
 does), and names them as Apple does (``eyeBlinkLeft`` ... ; Left and
@@ -25,7 +25,7 @@ import numpy as np
 
 from faceanim.face.face import Face
 from faceanim.face.generic_head import generic_head
-from faceanim.rig.performance import retarget
+from faceanim.rig.retarget import retarget
 from faceanim.rig.rig import Rig
 from faceanim.standards.arkit import LOOK_ANGLES, apple_name
 
