@@ -43,11 +43,14 @@ def cache_dir() -> Path | None:
 def code_fingerprint() -> str:
     """SHA-256 over faceanim's own source and data files (paths and contents, in sorted order)."""
     root = Path(__file__).resolve().parents[1]
+    files = []
+    for folder, dirs, names in os.walk(root):
+        dirs[:] = [d for d in dirs if d not in ("node_modules", "__pycache__")]  # the viewer's npm tree
+        files += [Path(folder) / n for n in names if n.endswith((".py", ".json", ".npz"))]
     h = hashlib.sha256()
-    for path in sorted(root.rglob("*")):
-        if path.is_file() and path.suffix in (".py", ".json", ".npz") and "node_modules" not in path.parts:
-            h.update(str(path.relative_to(root)).encode())
-            h.update(path.read_bytes())
+    for path in sorted(files):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
     return h.hexdigest()
 
 
