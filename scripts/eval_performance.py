@@ -163,7 +163,7 @@ def fmt(x, spec=".2f") -> str:
 def head_jitter(tracking, face, still: np.ndarray) -> tuple[float, float]:
     """Mean frame-to-frame motion (m) of the face-region vertices from the head's rotation alone,
     over the still frames: tracked as is, and smoothed as ``perform`` does (One-Euro)."""
-    from faceanim.perform import head_pivot
+    from faceanim.export import head_pivot
 
     region = face.mesh.vertices[face.face_region] - head_pivot(face)
     out = []

@@ -27,7 +27,7 @@ RANKS = [
     ("faceanim.face", 4), ("faceanim.build", 5),
     ("faceanim.rig", 6),
     ("faceanim.drivers", 6),  # beside rig: neither imports the other (checked below)
-    ("faceanim.player", 7), ("faceanim.perform", 7), ("faceanim.autorig", 7), ("faceanim.avatar", 7), ("faceanim.demo", 8),
+    ("faceanim.export", 7), ("faceanim.player", 7), ("faceanim.perform", 7), ("faceanim.autorig", 7), ("faceanim.avatar", 7), ("faceanim.demo", 8),
     ("faceanim.viewer", 8), ("faceanim.batch", 8), ("faceanim.live", 8),
     ("faceanim.cli", 9), ("faceanim.__main__", 10),
 ]

@@ -262,7 +262,7 @@ def write_rigged(path, auto: AutoRig, compact: bool = False, meta: dict | None =
     if Path(path).suffix.lower() != ".vrm":
         return write_gltf(path, face.mesh, auto.shapes, quantize=compact, extras=extras), {}
     from faceanim.io.vrm import write_vrm
-    from faceanim.perform import head_pivot
+    from faceanim.export import head_pivot
     from faceanim.standards.arkit import LOOK_ANGLES
 
     expressions, left_out = vrm_expressions(auto)

@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from faceanim.build.motion import MotionDatabase, head_rotation, load_database
+from faceanim.build.motion import MotionDatabase, load_database
 from faceanim.drivers.video.synthesis import Synthesiser
 from faceanim.drivers.video.tracking import Tracking
-from faceanim.errors import FaceAnimError, shown
+from faceanim.errors import FaceAnimError
 from faceanim.face.controls import CONTROL_NAMES
 from faceanim.face.face import Face
 from faceanim.rig.retarget import retarget
@@ -99,22 +99,17 @@ class Performance:
         return len(self.weights)
 
     def rotations(self, axes: np.ndarray | None = None) -> np.ndarray:
-        """(F, 3, 3) the head's rotation per frame (yaw, pitch, roll of the tracking), in the
-        coordinates of a mesh whose face frame has ``axes`` (3, 3; rows: the face's left, up and
-        forward in mesh coordinates, :attr:`FaceFrame.rotation <faceanim.face.frame.FaceFrame>`);
-        without ``axes``, the face's own frame."""
-        a = np.radians(self.pose[:, :3])
-        r = head_rotation(a[:, 0], a[:, 1], a[:, 2])
-        if axes is None:
-            return r
-        f = np.asarray(axes, dtype=np.float64)
-        return np.einsum("ji,fjk,kl->fil", f, r, f)  # F^T R F
+        """(F, 3, 3) the head's rotation per frame (yaw, pitch, roll of the tracking) in the
+        coordinates of a mesh whose face frame has ``axes`` (:func:`faceanim.export.head_rotations`)."""
+        from faceanim.export import head_rotations
+
+        return head_rotations(np.radians(self.pose[:, :3]), axes)
 
     def quaternions(self, axes: np.ndarray | None = None) -> np.ndarray:
         """(F, 4) :meth:`rotations` as glTF quaternions (x, y, z, w)."""
-        from scipy.spatial.transform import Rotation
+        from faceanim.export import head_quaternions
 
-        return Rotation.from_matrix(self.rotations(axes)).as_quat()
+        return head_quaternions(np.radians(self.pose[:, :3]), axes)
 
 
 def hold_untracked(values: np.ndarray, tracked: np.ndarray) -> np.ndarray:
@@ -436,17 +431,6 @@ def performance_rig(face: Face, db: MotionDatabase | None = None) -> Rig:
     return Rig.from_blendshapes(face.mesh, shapes)
 
 
-def head_pivot(face: Face) -> np.ndarray:
-    """(3,) the point the head turns about: midway between the face oval's sides in front of the
-    ears (landmarks 234, 454) at the eyes' height, 0.3 inter-ocular distances further back (near
-    the skull's centre; the neck's top is lower, but a head turning about it sways its face)."""
-    fr = face.frame
-    lm = face.landmarks
-    centre = 0.5 * (lm[234] + lm[454])
-    centre = centre + fr.rotation[1] * float((0.5 * (lm[33] + lm[263]) - centre) @ fr.rotation[1])
-    return centre - fr.rotation[2] * 0.3 * fr.iod
-
-
 UPPER_ARKIT = ("Eye", "Brow")  # ARKit curves of the upper face; all others are the lower face's
 
 
@@ -489,179 +473,73 @@ def arkit_weights(weights: np.ndarray, db: MotionDatabase, matrix: np.ndarray | 
 
 def performance_frames(perf: Performance, rig: Rig, face: Face, chunk: int = 64):
     """The face's vertices per frame: the bases blended, then turned by the head's rotation
-    (in the face's own frame) about :func:`head_pivot`."""
-    rot = perf.rotations(face.frame.rotation)
-    pivot = head_pivot(face)
-    for a in range(0, perf.n_frames, chunk):
-        v = rig.evaluate(perf.weights[a:a + chunk])
-        for j, vf in enumerate(v):
-            yield (vf - pivot) @ rot[a + j].T + pivot
+    (in the face's own frame) about :func:`~faceanim.export.head_pivot`."""
+    from faceanim.export import Animation, face_frames
+
+    return face_frames(Animation(perf.fps, head=np.radians(perf.pose[:, :3]), face=face, rig=rig,
+                                 curves=perf.weights), chunk)
 
 
-def video_sound(video, folder) -> Path | None:
-    """The sound of ``video`` as a WAV in ``folder`` (None if it has none or ffmpeg cannot read
-    it); ffmpeg's own messages are never shown."""
-    import subprocess
+def performance_animation(perf: Performance, db: MotionDatabase, face: Face | None = None, video=None,
+                          size: int = 512, bases: bool = False):
+    """A performance as an :class:`~faceanim.export.Animation`: its ARKit curves (:func:`arkit_curves`)
+    and the head's and the eyes' angles; on ``face``, ARKit's shapes driven by those curves (they play
+    on any ARKit rig and survive tools that clamp weights to 0..1), or with ``bases`` one morph
+    target per control of :func:`performance_rig`, each scaled by its basis's spread over the
+    database (weights of about -1..1 for the database's motion; the scales in the scene's
+    ``extras.basis_spread``); an MP4 renders the performance rig exactly, beside the frames of
+    ``video`` (the one tracked) with its sound; mouth cues name ``video`` as the sound."""
+    from faceanim.export import Animation
 
-    import imageio_ffmpeg
-
-    wav = Path(folder) / "sound.wav"
-    r = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-nostdin", "-y", "-i", str(video), "-vn",
-                        "-ac", "1", "-ar", "44100", str(wav)], capture_output=True, check=False)
-    return wav if r.returncode == 0 and wav.is_file() and wav.stat().st_size > 1000 else None
-
-
-def side_by_side(video_frames, face_frames, size: int):
-    """Each video frame scaled to ``size`` pixels high (even width) beside the face's render."""
-    import cv2
-
-    for img, face_img in zip(video_frames, face_frames):
-        h, w = img.shape[:2]
-        width = max(2, int(round(w * size / h / 2)) * 2)
-        yield np.hstack([cv2.resize(img, (width, size), interpolation=cv2.INTER_AREA), face_img])
+    curves = arkit_curves(perf, db)
+    eyes = eye_angles(perf.weights[:, 2 * db.n_bases + 2:2 * db.n_bases + 10])
+    a = Animation(perf.fps, arkit=curves, head=np.radians(perf.pose[:, :3]), eyes=eyes, face=face,
+                  video=Path(video) if video is not None else None, name="performance", size=size,
+                  sound_name=str(Path(video).resolve()) if video is not None else "",
+                  extras={"source": Path(video).name} if video is not None else {})
+    if face is not None:
+        rig = performance_rig(face, db)
+        a.rig, a.curves = rig, perf.weights
+        if bases:
+            spread = np.r_[np.tile(np.maximum(db.weights.std(axis=0), 1e-12), 2), np.ones(len(EYE_CONTROLS))]
+            a.targets = {n: rig.blendshape(n) * s for n, s in zip(rig.controls, spread)}
+            a.weights = perf.weights / spread
+            a.extras["basis_spread"] = [float(x) for x in spread[: db.n_bases]]
+    return a
 
 
 def write_performance(path, perf: Performance, db: MotionDatabase, face: Face | None = None, video=None,
-                      size: int = 512, progress=None, bases: bool = False) -> Path:
-    """Write a performance by the suffix of ``path``:
-
-    - ``.csv``: Live Link Face (:func:`arkit_curves`, the head's and the eyes' angles in radians);
-    - ``.glb``: ``face`` with ARKit's blendshapes as morph targets (Apple's names, weights 0..1:
-      :func:`write_arkit_gltf`), the curves and the head's rotation animated: it plays on any
-      ARKit rig and survives tools that clamp weights to 0..1;
-    - ``.glb`` with ``bases``: ``face`` with one morph target per control of :func:`performance_rig`, each scaled
-      by its basis's spread over the database (weights of about -1..1 for the database's motion;
-      the scales are in the scene's ``extras.basis_spread``), the weights and the head's rotation
-      (a node ``head`` at :func:`head_pivot`) animated per frame;
-    - ``.mp4``: the frames of ``video`` (the one tracked) beside the face rendered at ``size``
-      pixels high, with the video's sound;
-    - ``.tsv``, ``.json``: Rhubarb Lip Sync's mouth cues of the ARKit curves
-      (:func:`faceanim.drivers.cues.arkit_cues`), the video named as the sound.
-    """
-    import tempfile
-
-    from faceanim.io.arkit_csv import write_arkit_csv
+                      size: int = 512, progress=None, bases: bool = False) -> list[Path]:
+    """Write a performance (:func:`performance_animation`) by the suffix of ``path``
+    (:data:`faceanim.export.WRITERS`: .glb, .mp4, .csv, .tsv, .json); returns the files written."""
+    from faceanim.export import write
 
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".csv":
-        eyes = eye_angles(perf.weights[:, 2 * db.n_bases + 2:2 * db.n_bases + 10])
-        return write_arkit_csv(path, arkit_curves(perf, db), perf.fps, np.radians(perf.pose[:, :3]), eyes)
-    if suffix in (".tsv", ".json"):
-        from faceanim.drivers.cues import arkit_cues
-        from faceanim.standards.arkit import ARKIT_NAMES
-        from faceanim.io.rhubarb import write_cues
-
-        cues = arkit_cues(arkit_curves(perf, db), ARKIT_NAMES, perf.fps)
-        return write_cues(path, cues, perf.n_frames / perf.fps, str(Path(video).resolve()) if video else "")
-    if face is None:
-        raise FaceAnimError(f"a {suffix} output needs the face to animate")
-    rig = performance_rig(face, db)
-    if suffix == ".glb" and not bases:
-        extras = {"fps": perf.fps, **({"source": Path(video).name} if video is not None else {})}
-        return write_arkit_gltf(path, face, arkit_curves(perf, db), perf.fps, perf.quaternions(face.frame.rotation),
-                                "performance", extras)
-    if suffix == ".glb":
-        from faceanim.io.gltf import write_gltf
-
-        spread = np.r_[np.tile(np.maximum(db.weights.std(axis=0), 1e-12), 2), np.ones(len(EYE_CONTROLS))]
-        shapes = {n: rig.blendshape(n) * s for n, s in zip(rig.controls, spread)}
-        times = np.arange(perf.n_frames) / perf.fps
-        extras = {"fps": perf.fps, "basis_spread": [float(x) for x in spread[: db.n_bases]]}
-        if video is not None:
-            extras["source"] = Path(video).name
-        return write_gltf(path, face.mesh, shapes, times=times, weights=perf.weights / spread,
-                          animation_name="performance", rotations=perf.quaternions(face.frame.rotation),
-                          pivot=head_pivot(face), extras=extras)
-    if suffix == ".mp4":
-        from faceanim.io.video import video_frames, video_info
-        from faceanim.render.gl import OffscreenRenderer
-        from faceanim.render.video import write_video
-
-        if video is None:
-            raise FaceAnimError("an MP4 of a performance needs the video it was tracked in")
-        info = video_info(video)
-        with tempfile.TemporaryDirectory(dir=path.parent.resolve()) as tmp, \
-                OffscreenRenderer(face.mesh, size=(size, size), **face.view(yaw=0.0, pitch=0.0)) as r:
-            sound = video_sound(video, tmp)
-            faces = (r.render(v) for v in performance_frames(perf, rig, face))
-            return write_video(path, side_by_side(video_frames(info), faces, size), fps=perf.fps, audio=sound,
-                               progress=progress)
-    raise FaceAnimError(f"unknown output kind '{shown(suffix)}'; write .glb, .mp4, .csv, .tsv or .json")
+    if path.suffix.lower() == ".mp4" and video is None:
+        raise FaceAnimError("an MP4 of a performance needs the video it was tracked in")
+    if path.suffix.lower() == ".fap":
+        raise FaceAnimError("a performance is written as .glb, .mp4, .csv, .tsv or .json, not .fap")
+    return write(path, performance_animation(perf, db, face, video, size, bases), progress)
 
 
-def head_quaternions(angles: np.ndarray, axes: np.ndarray) -> np.ndarray:
-    """(F, 4) glTF quaternions of the head's (F, 3) yaw, pitch, roll in radians (faceanim's signs,
-    :data:`~faceanim.drivers.video.tracking.POSE_NAMES`) in the coordinates of a mesh whose face
-    frame has ``axes`` (:meth:`Performance.rotations`)."""
-    a = np.asarray(angles, dtype=np.float64)
-    pose = np.zeros((len(a), 6))
-    pose[:, :3] = np.degrees(a)
-    return Performance(1.0, np.zeros((len(a), 0)), pose, np.ones(len(a), dtype=bool)).quaternions(axes)
-
-
-def write_arkit_gltf(path, face: Face, curves: np.ndarray, fps: float, rotations: np.ndarray, name: str,
-                     extras: dict, shapes: dict | None = None, quantize: bool = False) -> Path:
-    """``face`` with ARKit's blendshapes as morph targets (:func:`~faceanim.rig.arkit.arkit_shapes`,
-    Apple's names, as ``faceanim rig`` makes them; ``shapes`` if already made) animated by
-    ``curves`` (F, 52) in Live Link Face order at ``fps``, the head's ``rotations`` (F, 4) on a node
-    ``head`` turning about :func:`head_pivot`. Every made shape is a target (a take or performance
-    that leaves one at 0 still gives a full ARKit rig); the eyeballs turn by the eyeLook targets."""
-    from faceanim.standards.arkit import ARKIT_NAMES
-    from faceanim.io.gltf import write_gltf
-    from faceanim.rig.arkit import arkit_shapes
-    from faceanim.standards.arkit import apple_name
-
-    made = shapes if shapes is not None else arkit_shapes(face)[0]
-    column = {apple_name(n): k for k, n in enumerate(ARKIT_NAMES)}
-    names = [n for n in made if n in column]
-    w = np.clip(np.asarray(curves, dtype=np.float64)[:, [column[n] for n in names]], 0.0, 1.0)
-    extras = dict(extras, morph_sets={"arkit": names})
-    return write_gltf(path, face.mesh, {n: made[n] for n in names}, times=np.arange(len(w)) / fps, weights=w,
-                      animation_name=name, rotations=rotations, pivot=head_pivot(face), extras=extras,
-                      quantize=quantize)
-
-
-def write_take(path, take, face: Face | None = None, fps: float = 30.0, size: int = 512, progress=None) -> Path:
+def write_take(path, take, face: Face | None = None, fps: float = 30.0, size: int = 512,
+               progress=None) -> list[Path]:
     """Play a recorded Live Link Face take (:class:`~faceanim.io.arkit_csv.ArkitTake`, resampled to
-    ``fps``) on ``face`` by the suffix of ``path``:
-
-    - ``.glb``: the face with its ARKit blendshapes (:func:`~faceanim.rig.arkit.arkit_shapes`, Apple's
-      names, the same as ``faceanim rig`` makes) as morph targets, the recorded weights and head rotation animated (node ``head``);
-    - ``.mp4``: the face rendered, turning with the recorded head;
-    - ``.csv``: the take itself at ``fps`` (Live Link Face).
+    ``fps``) on ``face`` by the suffix of ``path`` (:data:`faceanim.export.WRITERS`): .glb (the
+    face's ARKit shapes, as ``faceanim rig`` makes them, with the recorded weights and head rotation
+    animated), .mp4 (rendered, turning with the recorded head), .csv (the take itself at ``fps``),
+    .tsv/.json (its mouth cues). Returns the files written.
 
     The recorded head angles are taken as yaw, pitch, roll in radians with faceanim's signs (the
     shared take's are all zero: the signs are unchecked against a moving recording)."""
-    from faceanim.io.arkit_csv import write_arkit_csv
-    from faceanim.standards.arkit import ARKIT_NAMES
-    from faceanim.rig.arkit import arkit_shapes
-    from faceanim.standards.arkit import apple_name
+    from faceanim.export import Animation, write
 
     path = Path(path)
-    suffix = path.suffix.lower()
+    if path.suffix.lower() == ".fap":
+        raise FaceAnimError("a take is written as .glb, .mp4, .csv, .tsv or .json, not .fap")
     r = take.resample(fps)
-    if suffix == ".csv":
-        return write_arkit_csv(path, r.weights, fps, r.head, r.eyes)
-    if face is None:
-        raise FaceAnimError(f"a {suffix} output needs the face to animate")
-    made, _ = arkit_shapes(face)
-    rig = Rig.from_blendshapes(face.mesh, made)
-    column = {apple_name(n): k for k, n in enumerate(ARKIT_NAMES)}
-    curves = r.weights[:, [column[c] for c in rig.controls]]
-    pose = np.zeros((r.n_samples, 6))
-    pose[:, :3] = np.degrees(r.head)
-    perf = Performance(fps, curves, pose, np.ones(r.n_samples, dtype=bool))
-    if suffix == ".glb":
-        if not np.abs(r.weights).max() > 0:
-            raise FaceAnimError("the take moves no blendshape; give a recording of a moving face")
-        return write_arkit_gltf(path, face, r.weights, fps, perf.quaternions(face.frame.rotation), "take",
-                                {"fps": fps, "source": Path(take.source).name}, shapes=made)
-    if suffix == ".mp4":
-        from faceanim.render.gl import OffscreenRenderer
-        from faceanim.render.video import write_video
-
-        with OffscreenRenderer(face.mesh, size=(size, size), **face.view(yaw=0.0, pitch=0.0)) as renderer:
-            frames = (renderer.render(v) for v in performance_frames(perf, rig, face))
-            return write_video(path, frames, fps=fps, progress=progress)
-    raise FaceAnimError(f"unknown output kind '{shown(suffix)}'; write .glb, .mp4, .csv, .tsv or .json")
+    if path.suffix.lower() == ".glb" and not np.abs(r.weights).max() > 0:
+        raise FaceAnimError("the take moves no blendshape; give a recording of a moving face")
+    a = Animation(fps, arkit=r.weights, head=r.head, eyes=r.eyes, face=face, name="take", size=size,
+                  extras={"source": Path(take.source).name})
+    return write(path, a, progress)

@@ -58,21 +58,34 @@ def write_rig_gltf(rig: Rig, curves: np.ndarray, path, fps: float, name: str = "
     return write_gltf(path, rig.mesh, shapes, times=times, weights=weights, animation_name=name, **options)
 
 
-def render_stream(rig: FapRig, stream: FapStream, path, view: dict | None = None, size: int = 512, audio=None,
-                  progress=None) -> Path:
-    """Render a FAP stream on the rig's face to an MP4 (with the sound file ``audio``)."""
-    return render_curves(rig, rig.stream_curves(stream), path, stream.fps, view, size, audio, progress)
-
-
-def gltf_stream(rig: FapRig, stream: FapStream, path, **options) -> Path:
-    """A FAP stream as a glTF animation: one morph target per FAP the stream uses that this face
-    can show, named by the FAP (``open_jaw``), weighted by its values scaled to [-1, 1]."""
+def fap_targets(rig: FapRig, stream: FapStream) -> tuple[dict, np.ndarray]:
+    """A FAP stream as morph targets: one per FAP the stream uses that this face can show, named by
+    the FAP (``open_jaw``), and their (F, T) weights (the values scaled to [-1, 1];
+    :meth:`Rig.morph_targets <faceanim.rig.rig.Rig.morph_targets>`)."""
     curves = rig.stream_curves(stream)
     used = [rig.controls[k] for k in np.flatnonzero(np.abs(curves).max(0) > 0)
             if rig.supported[k] and not faps()[k].is_high_level]
     if not used:
         raise FaceAnimError("the stream sets no FAP this face can show")
-    return write_rig_gltf(rig, curves, path, stream.fps, stream.name or "faps", names=used, **options)
+    return rig.morph_targets(curves, used)
+
+
+def stream_animation(face: Face, rig: FapRig, stream: FapStream, faps_as_targets: bool = False, **fields):
+    """A FAP stream on ``face`` as an :class:`~faceanim.export.Animation`: the stream itself (.fap), the
+    FAP rig's curves (an MP4 renders them exactly, the camera :meth:`Face.view`), and either ARKit
+    curves and the head's angles fitted to it (:func:`arkit_from_stream`, made only for an output that
+    needs them) or, with ``faps_as_targets``, one morph target per FAP (:func:`fap_targets`)."""
+    from functools import cache
+
+    from faceanim.export import Animation
+
+    fitted = cache(lambda: arkit_from_stream(face, rig, stream))
+    a = Animation(stream.fps, arkit=lambda: fitted()[0], head=lambda: fitted()[1], face=face, rig=rig,
+                  curves=rig.stream_curves(stream), fap=stream, name=stream.name or "faps", view=face.view(),
+                  **fields)
+    if faps_as_targets:
+        a.targets, a.weights = fap_targets(rig, stream)
+    return a
 
 
 GROUP_COLOURS = {"brows": (255, 170, 0), "eyes": (0, 200, 255), "mouth": (255, 60, 60), "cheeks": (120, 255, 120),

@@ -14,7 +14,7 @@ from faceanim.errors import shown
 
 def _cmd_live(args) -> None:
     from faceanim.live.pipeline import run_live
-    from faceanim.live.sinks import CsvSink, parse_sinks
+    from faceanim.live.sinks import FileSink, parse_sinks
     from faceanim.live.sources import CameraSource, ClipSource
 
     if args.video is not None and args.camera is not None:
@@ -50,12 +50,12 @@ def _cmd_live(args) -> None:
         viewer_port(views[0])
     others = [t for t in args.to if t not in views]
     sinks = parse_sinks(others, 30.0, args.subject) if others else []
-    files = [s.path for s in sinks if isinstance(s, CsvSink)]
+    files = [s.path for s in sinks if isinstance(s, FileSink)]
     if len({p.resolve() for p in files}) < len(files):
-        raise CommandError("two --to csv: sinks name the same file; give each its own")
+        raise CommandError("two --to file: sinks name the same file; give each its own")
     inputs = [Path(p).resolve() for p in (args.video, args.audio) if p is not None]
     if any(p.resolve() in inputs for p in files):
-        raise CommandError("a --to csv: file is an input; give the take its own path")
+        raise CommandError("a --to file: output is an input; give the take its own path")
     check_outputs(*files)
     sound = None
     if not picture:
@@ -71,6 +71,8 @@ def _cmd_live(args) -> None:
             CameraSource(args.camera, seconds=args.seconds)
     for s in sinks:  # the rate now known
         s.fps = source.fps
+        if isinstance(s, FileSink) and (args.audio or args.video):
+            s.sound_name = str(Path(args.audio or args.video).resolve())  # what cue files name as the sound
     if views:
         from faceanim.live.viewer import ViewerSink
 
@@ -104,7 +106,8 @@ def register(sub) -> None:
                                    "played in real time, --audio), and send ARKit's 52 curves "
                                    "with the head's and eyes' angles to each --to: vmc://HOST:PORT (VSeeFace, VNyan, "
                                    "Warudo, VMagicMirror; port 39539), livelink://HOST:PORT (Unreal's Live Link, "
-                                   "port 11111), csv:PATH (a Live Link Face CSV of the run, written when it stops), "
+                                   "port 11111), file:PATH (the run written when it stops: a Live Link Face CSV, Rhubarb "
+                                   "mouth cues .tsv/.json, or the default face animated .glb; csv:PATH is a .csv), "
                                    "viewer[:PORT] (the faceanim view page with the avatar moving). "
                                    "Frames the compute cannot keep up with are dropped, and counted.")
     p.add_argument("--video", metavar="FILE", help="a clip, played in real time; the run ends with it")
@@ -116,8 +119,8 @@ def register(sub) -> None:
                    help="with --audio and a video or camera: whose mouth the avatar has (default: both, averaged; "
                         "the lips shut when either shuts them)")
     p.add_argument("--to", action="append", metavar="SINK", required=True,
-                   help="where the curves go (repeatable): vmc://HOST:PORT, livelink://HOST:PORT, csv:PATH or "
-                        "viewer[:PORT] (the faceanim view page, 8760 by default)")
+                   help="where the curves go (repeatable): vmc://HOST:PORT, livelink://HOST:PORT, file:PATH "
+                        "(.csv .tsv .json .glb) or viewer[:PORT] (the faceanim view page, 8760 by default)")
     p.add_argument("--subject", default="faceanim", help="the Live Link subject name")
     p.add_argument("--face", metavar="MODEL", help="the avatar --to viewer shows, a .glb or .vrm whose morph targets "
                                                   "(or VRM expressions) carry ARKit's names (default: the default "

@@ -24,49 +24,31 @@ from faceanim.cli.common import (
     progress,
 )
 from faceanim.limits import DEFAULT_FPS
+from faceanim.export import WRITERS, suffixes
 from faceanim.standards.rhubarb import CUE_SUFFIXES
 
 
 def _write(args, rig, stream, face, audio: Path | None) -> list[Path]:
-    """A FAP stream as .fap, .glb (+ its sound as .wav beside, named in the glb's extras), .mp4 or
-    .csv (Live Link Face: ARKit curves fitted to the stream on this face). The .glb carries the
-    face's ARKit shapes driven by those fitted curves (weights 0..1) and the head's rotation, or
-    with ``--faps`` one target per FAP (signed weights)."""
+    """A FAP stream written by the suffix of ``-o`` (:data:`faceanim.export.WRITERS`): .fap, .glb (the
+    face's ARKit shapes driven by curves fitted to the stream on this face, weights 0..1, and the
+    head's rotation, or with ``--faps`` one target per FAP, signed weights; its sound as .wav beside,
+    named in the glb's extras), .mp4 (rendered, with the sound) or .csv (Live Link Face: the fitted
+    ARKit curves)."""
     import numpy as np
 
-    from faceanim.io.fapfile import write_fap
-    from faceanim.player import gltf_stream, render_stream
+    from faceanim.export import write
+    from faceanim.player import stream_animation
 
     out = Path(args.output)
-    suffix = out.suffix.lower()
-    if suffix == ".fap":
-        return [write_fap(out, stream)]
-    if suffix == ".csv":
-        from faceanim.io.arkit_csv import write_arkit_csv
-        from faceanim.player import arkit_from_stream
-
-        weights, head, _ = arkit_from_stream(face, rig, stream)
-        return [write_arkit_csv(out, weights, stream.fps, head)]
-    if suffix == ".glb":
-        from faceanim.io.gltf import sound_companion
-
-        wav = sound_companion(out) if audio is not None else None
-        extras = {"audio": wav.name} if wav else None
-        if getattr(args, "faps", False):
-            glb = gltf_stream(rig, stream, out, quantize=args.compact, extras=extras)
-        else:
-            from faceanim.perform import head_quaternions, write_arkit_gltf
-            from faceanim.player import arkit_from_stream
-
-            weights, head, _ = arkit_from_stream(face, rig, stream)
-            if not (np.any(weights) or np.any(head)):
-                raise CommandError("the stream sets no FAP this face can show (as ARKit curves); give FAPs of the "
-                                   "face, brows, eyes, mouth or head")
-            glb = write_arkit_gltf(out, face, weights, stream.fps, head_quaternions(head, face.frame.rotation),
-                                   "animation", {"fps": stream.fps, **(extras or {})}, quantize=args.compact)
-        return [glb] if wav is None else _sound_beside(glb, wav, audio)
-    with progress(stream.n_frames, f"rendering {out.name}", args.quiet) as bar:
-        return [render_stream(rig, stream, out, face.view(), size=args.size, audio=audio, progress=bar)]
+    a = stream_animation(face, rig, stream, getattr(args, "faps", False), sound=audio, quantize=args.compact,
+                         size=args.size)
+    if out.suffix.lower() in (".glb", ".csv") and a.targets is None:
+        if not (np.any(a.need("arkit", "")) or np.any(a.need("head", ""))):
+            raise CommandError("the stream sets no FAP this face can show (as ARKit curves); give FAPs of the "
+                               "face, brows, eyes, mouth or head")
+    with progress(stream.n_frames if out.suffix.lower() == ".mp4" else 0, f"rendering {out.name}",
+                  args.quiet or out.suffix.lower() != ".mp4") as bar:
+        return write(out, a, bar)
 
 
 def _say_phones(args, voice, tmp: Path) -> tuple[list, Path]:
@@ -86,100 +68,40 @@ def _say_phones(args, voice, tmp: Path) -> tuple[list, Path]:
     return say_timed(args.text, wav, voice=voice), wav
 
 
-def _say_cues(args, phones, wav) -> tuple[list[Path], int]:
-    """``say`` to Rhubarb Lip Sync's mouth cues (.tsv, .json); speech made from text is written beside
-    them (the JSON names it), recorded speech is named where it is."""
-    from faceanim.drivers.cues import phone_cues
-    from faceanim.io.audio import read_audio, write_wav
-    from faceanim.io.rhubarb import cue_sound, tidy_cues, write_cues
-
-    samples, rate = read_audio(wav)
-    duration = len(samples) / rate
-    out = Path(args.output)
-    cues = phone_cues(phones)
-    if args.audio:
-        return [write_cues(out, cues, duration, str(Path(args.audio).resolve()))], len(tidy_cues(cues, duration))
-    sound = cue_sound(out)
-    written = write_cues(out, cues, duration, sound.name)
-    try:
-        return [written, write_wav(sound, samples, rate)], len(tidy_cues(cues, duration))
-    except BaseException:
-        written.unlink(missing_ok=True)
-        raise
-
-
-def _say_fap(args, face, phones, wav) -> tuple[list[Path], int, float]:
-    """``say`` to a .fap file: MPEG-4's visemes as FAPs (Lee et al.), for any MPEG-4 player."""
-    from faceanim.drivers.mpeg4 import Action, expression_faps
-    from faceanim.drivers.speech.visemes import speech_stream
-    from faceanim.io.fapfile import write_fap
-
-    extra = []
-    if args.expression:
-        end = max(p.end for p in phones)
-        extra.append(Action(args.expression, expression_faps(args.expression), 0.0, end + 0.2,
-                            args.intensity, "linear", 0.1, 0.1, 0.3))
-    # a .fap file is for any face: MPEG-4's neutral face has closed lips, so no gap to close
-    stream = speech_stream(0.0, phones, args.fps, extra, name=Path(args.output).stem)
-    return [write_fap(args.output, stream)], stream.n_frames, stream.fps
-
-
-def _say_arkit(args, face, phones, wav) -> tuple[list[Path], int, float]:
-    """``say`` on the face's own ARKit shapes (:mod:`faceanim.drivers.speech.lipsync`): .glb (the
-    shapes used as morph targets by Apple's names, the weights animated, the sound beside it),
-    .mp4 (rendered with the sound) or .csv (Live Link Face)."""
+def _say_animation(args, face, phones, wav):
+    """``say`` as an :class:`~faceanim.export.Animation`: ARKit curves of the lip sync
+    (:mod:`faceanim.drivers.speech.lipsync`, with ``--expression`` held), Rhubarb cues of the phones,
+    MPEG-4's visemes as FAPs (Lee et al.; made only for a .fap), the sound (written beside a .glb
+    or cue file, or the recording named)."""
     import numpy as np
 
+    from faceanim.drivers.cues import phone_cues
     from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
-    from faceanim.rig.arkit import arkit_shapes
-    from faceanim.rig.rig import Rig
-
+    from faceanim.export import Animation
     from faceanim.standards.arkit import APPLE_NAMES
 
-    out = Path(args.output)
-    suffix = out.suffix.lower()
-    rig = None
-    if suffix == ".csv":  # the curves alone: no face needed
-        names = list(APPLE_NAMES)
-    else:
-        shapes, _ = arkit_shapes(face)
-        rig = Rig.from_blendshapes(face.mesh, shapes)
-        names = list(rig.controls)
+    names = list(APPLE_NAMES)  # Live Link Face's order
     curves = lipsync_curves(phones, names, args.fps)
     if args.expression:
         curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),
                          0.0, 1.0)
-    if suffix == ".csv":  # names are APPLE_NAMES: the columns in Live Link order
-        from faceanim.io.arkit_csv import write_arkit_csv
 
-        return [write_arkit_csv(out, curves, args.fps, np.zeros((len(curves), 3)))], len(curves), args.fps
-    if suffix == ".glb":
-        from faceanim.io.gltf import sound_companion, write_gltf
+    def fap_stream():
+        from faceanim.drivers.mpeg4 import Action, expression_faps
+        from faceanim.drivers.speech.visemes import speech_stream
 
-        used = [k for k in range(len(names)) if curves[:, k].max() > 0]
-        companion = sound_companion(out)
-        glb = write_gltf(out, face.mesh, {names[k]: rig.blendshape(names[k]) for k in used},
-                         times=np.arange(len(curves)) / args.fps, weights=curves[:, used], animation_name=out.stem,
-                         quantize=args.compact, extras={"fps": args.fps, "audio": companion.name})
-        return _sound_beside(glb, companion, wav), len(curves), args.fps
-    from faceanim.player import render_curves
+        extra = []
+        if args.expression:
+            end = max(p.end for p in phones)
+            extra.append(Action(args.expression, expression_faps(args.expression), 0.0, end + 0.2,
+                                args.intensity, "linear", 0.1, 0.1, 0.3))
+        # a .fap file is for any face: MPEG-4's neutral face has closed lips, so no gap to close
+        return speech_stream(0.0, phones, args.fps, extra, name=Path(args.output).stem)
 
-    with progress(len(curves), f"rendering {out.name}", args.quiet) as bar:
-        return ([render_curves(rig, curves, out, args.fps, face.view(), size=args.size, audio=wav, progress=bar)],
-                len(curves), args.fps)
-
-
-def _sound_beside(glb: Path, companion: Path, wav) -> list[Path]:
-    """The sound ``wav`` written as ``companion`` beside a written ``glb``; the glb removed if that fails
-    (no half of the pair left behind)."""
-    from faceanim.io.audio import read_audio, write_wav
-
-    try:
-        samples, rate = read_audio(wav)
-        return [glb, write_wav(companion, samples, rate)]
-    except BaseException:
-        glb.unlink(missing_ok=True)
-        raise
+    out = Path(args.output)
+    return Animation(args.fps, arkit=curves, face=face, fap=fap_stream, cues=phone_cues(phones), sound=wav,
+                     sound_name=str(Path(args.audio).resolve()) if args.audio else "", name=out.stem,
+                     quantize=args.compact, size=args.size, view=face.view() if face is not None else None)
 
 
 def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
@@ -188,6 +110,8 @@ def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
     import numpy as np
 
     from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
+    from faceanim.export import sound_beside
+    from faceanim.io.audio import read_audio
     from faceanim.io.gltf import sound_companion
     from faceanim.standards.arkit import APPLE_NAMES
 
@@ -199,7 +123,7 @@ def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
     out = Path(args.output)
     companion = sound_companion(out)
     play_own(args, out, curves, args.fps, out.stem, {"audio": companion.name, "fps": args.fps})
-    return _sound_beside(out, companion, wav), len(curves), args.fps
+    return sound_beside(out, companion, *read_audio(wav)), len(curves), args.fps
 
 
 def _cmd_say(args) -> None:
@@ -222,28 +146,32 @@ def _cmd_say(args) -> None:
 
         read_audio(args.audio, "recorded speech")
     suffix = Path(args.output).suffix.lower()
-    if suffix in CUE_SUFFIXES:
-        if args.face or args.landmarks:
-            raise CommandError(f"a {suffix} output holds mouth cues, not a face: drop --face/--landmarks, or write "
-                               ".glb or .mp4")
-        if args.expression:
-            raise CommandError("mouth cues (.tsv, .json) show the mouth's shapes only; leave out --expression")
-        with tempfile.TemporaryDirectory() as tmp:
-            phones, wav = _say_phones(args, voice, Path(tmp))
-            written, n_cues = _say_cues(args, phones, wav)
-        note_written(written)
-        print(f"wrote {', '.join(map(str, written))} ({n_cues} mouth cues, {len(phones)} phones)")
-        return
-    if suffix == ".csv" and (args.face or args.landmarks):
-        raise CommandError("a .csv output holds ARKit curves, not a face: drop --face/--landmarks, or write .glb "
-                           "or .mp4")
+    if suffix in CUE_SUFFIXES and args.expression:
+        raise CommandError("mouth cues (.tsv, .json) show the mouth's shapes only; leave out --expression")
+    if not WRITERS[suffix].shows_face and (args.face or args.landmarks):
+        raise CommandError(f"a {suffix} output holds {WRITERS[suffix].holds.split(' (')[0]}, not a face: drop "
+                           "--face/--landmarks, or write .glb or .mp4")
     own = own_targets(args, suffix)
-    face = None if own or suffix == ".csv" else load_face(args)
+    face = load_face(args) if WRITERS[suffix].shows_face and not own else None
     with tempfile.TemporaryDirectory() as tmp:
         phones, wav = _say_phones(args, voice, Path(tmp))
-        written, n_frames, fps = (_say_own if own else _say_fap if suffix == ".fap" else _say_arkit)(args, face,
-                                                                                                  phones, wav)
+        if own:
+            written, n_frames, fps = _say_own(args, face, phones, wav)
+        else:
+            from faceanim.export import write
+
+            a = _say_animation(args, face, phones, wav)
+            with progress(a.n_frames if suffix == ".mp4" else 0, f"rendering {Path(args.output).name}",
+                          args.quiet or suffix != ".mp4") as bar:
+                written = write(args.output, a, bar)
+            n_frames, fps = (a.fap.n_frames, a.fap.fps) if suffix == ".fap" else (a.n_frames, a.fps)
     note_written(written)
+    if suffix in CUE_SUFFIXES:
+        from faceanim.io.rhubarb import tidy_cues
+
+        print(f"wrote {', '.join(map(str, written))} ({len(tidy_cues(a.cues, n_frames / fps))} mouth cues, "
+              f"{len(phones)} phones)")
+        return
     print(f"wrote {', '.join(map(str, written))} ({n_frames} frames, {len(phones)} phones, {n_frames / fps:.1f} s)")
 
 
@@ -362,7 +290,7 @@ def register(sub) -> None:
     sy.add_argument("--intensity", type=INTENSITY, default=0.6, help="intensity of --expression (0..2)")
     sy.add_argument("--voice", default="en-us", help="espeak-ng voice (`espeak-ng --voices` lists them)")
     sy.add_argument("--fps", type=FPS, default=DEFAULT_FPS, help="frames per second (up to 240)")
-    _video_options(sy, [".mp4", ".glb", ".fap", ".csv", *CUE_SUFFIXES])
+    _video_options(sy, suffixes())
     sy.set_defaults(func=_cmd_say)
 
     fp = sub.add_parser("fap", help=HELP["fap"])
@@ -371,7 +299,7 @@ def register(sub) -> None:
     fpl.add_argument("fap", metavar="FAP", help="the .fap file")
     add_face(fpl, positional=False)
     fpl.add_argument("--audio", metavar="SOUND", help="sound to put under the video (or beside a .glb)")
-    _video_options(fpl, [".mp4", ".glb", ".csv"])
+    _video_options(fpl, suffixes(".fap", *CUE_SUFFIXES))
     fpl.add_argument("--faps", action="store_true", help=".glb: one morph target per FAP (signed weights) instead "
                                                          "of the face's ARKit shapes with fitted curves")
     fpl.set_defaults(func=_cmd_fap_play)
@@ -390,7 +318,7 @@ def register(sub) -> None:
     di = sub.add_parser("direct", help=HELP["direct"])
     di.add_argument("script", metavar="SCRIPT")
     add_face(di, positional=False, default_help="the script's 'face', else the embedded default face")
-    _video_options(di, [".mp4", ".glb", ".fap", ".csv"])
+    _video_options(di, suffixes(*CUE_SUFFIXES))
     di.add_argument("--faps", action="store_true", help=".glb: one morph target per FAP (signed weights) instead "
                                                         "of the face's ARKit shapes with fitted curves")
     di.set_defaults(func=_cmd_direct)

@@ -19,6 +19,7 @@ from faceanim.cli.common import (
     report,
 )
 from faceanim.errors import shown
+from faceanim.export import WRITERS, suffixes
 from faceanim.limits import MAX_FRAMES
 
 
@@ -129,7 +130,7 @@ def _output(args, inputs, csv_is: str) -> tuple[Path, str]:
         raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
     check_outputs(args.output)
     suffix = out.suffix.lower()
-    if suffix in (".csv", ".tsv", ".json") and (args.face or args.landmarks):
+    if suffix in WRITERS and not WRITERS[suffix].shows_face and (args.face or args.landmarks):
         what = csv_is if suffix == ".csv" else "holds mouth cues"
         raise CommandError(f"a {suffix} output {what}, not a face: drop --face/--landmarks, or write .glb or .mp4")
     return out, suffix
@@ -155,7 +156,7 @@ def _cmd_perform(args) -> None:
         raise CommandError("--bases writes faceanim's own basis targets to .glb; a .vrm output plays ARKit's curves "
                            "onto a --face VRM avatar (leave out --bases)")
     own = own_targets(args, suffix) and not args.bases
-    face = load_face(args) if suffix not in (".csv", ".tsv", ".json") and not own else None
+    face = load_face(args) if WRITERS[suffix].shows_face and not own else None
     with progress(info.frames_expected, "tracking", args.quiet) as bar:
         tr = track_frames(video_frames(info), info.fps, args.neutral_frame, bar)
     perf = perform(tr, db, raw=args.raw, window=args.window, k=args.k, overlap=args.overlap,
@@ -179,7 +180,7 @@ def _cmd_perform(args) -> None:
         return
     with progress(perf.n_frames if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
         written = write_performance(out, perf, db, face, args.video, args.size, bar, bases=args.bases)
-    report([written])
+    report(written)
 
 
 def _cmd_arkit_play(args) -> None:
@@ -200,11 +201,11 @@ def _cmd_arkit_play(args) -> None:
         print(f"{n} frames ({take.duration:.1f} s) of the take at {args.fps:g} fps")
         report([play_own(args, out, take.resample(args.fps).weights, args.fps, "take")])
         return
-    face = load_face(args) if suffix != ".csv" else None
+    face = load_face(args) if WRITERS[suffix].shows_face else None
     with progress(n if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
         written = write_take(out, take, face, args.fps, args.size, bar)
     print(f"{n} frames ({take.duration:.1f} s) of the take at {args.fps:g} fps")
-    report([written])
+    report(written)
 
 
 def register(sub) -> None:
@@ -279,7 +280,7 @@ def register(sub) -> None:
                    help=".glb: one morph target per deformation basis (lower_01 ..., upper_01 ..., weights about "
                         "-1..1) instead of ARKit's 52")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    add_output(p, [".glb", ".vrm", ".mp4", ".csv", ".tsv", ".json"],
+    add_output(p, (*suffixes(".fap"), ".vrm"),
                help=".tsv/.json: Rhubarb Lip Sync's mouth cues of the performer's mouth")
     p.set_defaults(func=_cmd_perform)
 
@@ -289,7 +290,7 @@ def register(sub) -> None:
                          description="Play a recorded take (ARKit's 52 blendshape curves and the head's angles, as "
                                      "Live Link Face writes them) on the face (the default face unless --face): the "
                                      "generic head's ARKit shapes are retargeted onto it (Apple's names) and driven by the recorded curves. .glb: morph targets, weights "
-                                     "and head rotation animated; .mp4: rendered; .csv: the take resampled. A --face "
+                                     "and head rotation animated; .mp4: rendered; .csv: the take resampled; .tsv/.json: its mouth cues. A --face "
                                      ".glb/.vrm avatar whose morph targets already carry ARKit's names (any spelling) "
                                      "is played by name instead: the same avatar with one more animation (.glb/.vrm).")
     ap.add_argument("take", metavar="TAKE.csv", help="a Live Link Face CSV recording")
@@ -297,5 +298,6 @@ def register(sub) -> None:
     ap.add_argument("--fps", type=_arg_type("--fps", 1, 240), default=30.0, help="frames per second of the output")
     ap.add_argument("--size", type=_even("--size", 64, 1024), default=512, help="MP4 pixels per side (even)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_output(ap, [".glb", ".vrm", ".mp4", ".csv"])
+    add_output(ap, (*suffixes(".fap"), ".vrm"),
+               help=".tsv/.json: Rhubarb Lip Sync's mouth cues of the take's mouth")
     ap.set_defaults(func=_cmd_arkit_play)

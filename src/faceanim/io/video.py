@@ -110,3 +110,26 @@ def video_frames(info: VideoInfo) -> Iterator[np.ndarray]:
     if n < expected - max(2, int(0.02 * expected)):
         raise InputFileError(f"video '{_name(info.path)}' ends after {n} of the {expected} frames it announces "
                              "(truncated or damaged); give the whole file or re-export it")
+
+
+def video_sound(video, folder) -> Path | None:
+    """The sound of ``video`` as a WAV in ``folder`` (None if it has none or ffmpeg cannot read
+    it); ffmpeg's own messages are never shown."""
+    import subprocess
+
+    import imageio_ffmpeg
+
+    wav = Path(folder) / "sound.wav"
+    r = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-nostdin", "-y", "-i", str(video), "-vn",
+                        "-ac", "1", "-ar", "44100", str(wav)], capture_output=True, check=False)
+    return wav if r.returncode == 0 and wav.is_file() and wav.stat().st_size > 1000 else None
+
+
+def side_by_side(frames, face_frames, size: int):
+    """Each video frame scaled to ``size`` pixels high (even width) beside the face's render."""
+    import cv2
+
+    for img, face_img in zip(frames, face_frames):
+        h, w = img.shape[:2]
+        width = max(2, int(round(w * size / h / 2)) * 2)
+        yield np.hstack([cv2.resize(img, (width, size), interpolation=cv2.INTER_AREA), face_img])

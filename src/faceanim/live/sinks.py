@@ -4,8 +4,10 @@
   VSeeFace, VNyan, Warudo, VMagicMirror;
 - ``livelink://HOST[:PORT]``: Live Link Face's UDP packets (:mod:`faceanim.io.livelink`; port
   11111), for Unreal's Live Link (subject ``--subject``);
-- ``csv:PATH``: a Live Link Face CSV of the whole run, written (atomically) when the run stops,
-  Ctrl-C included, on a uniform clock at the source's frame rate;
+- ``file:PATH``: the whole run written (atomically) when it stops, Ctrl-C included, on a uniform
+  clock at the source's frame rate, by PATH's suffix through :mod:`faceanim.export`: a Live Link
+  Face CSV, Rhubarb mouth cues (.tsv, .json) or the default face animated (.glb); ``csv:PATH``
+  is the same for a .csv;
 - ``viewer[:PORT]``: the ``faceanim view`` page with the avatar moving live (:mod:`faceanim.live.viewer`).
 
 A sink takes each :class:`~faceanim.live.performer.LiveSample` (``send``) and is closed once
@@ -127,16 +129,28 @@ class LiveLinkSink(UdpSink):
                                  float(f - np.floor(f + 1e-9))))
 
 
-class CsvSink(Sink):
-    """``csv:PATH``: every sample kept; on close, resampled to ``fps`` on the samples' own times
-    and written as Live Link Face CSV."""
+FILE_SUFFIXES = (".csv", ".tsv", ".json", ".glb")  # what a run is written to (faceanim.export.WRITERS)
+
+
+class FileSink(Sink):
+    """``file:PATH`` (or ``csv:PATH``): every sample kept; on close, resampled to ``fps`` on the
+    samples' own times and written by PATH's suffix through the export registry
+    (:data:`faceanim.export.WRITERS`): .csv a Live Link Face CSV, .tsv/.json Rhubarb Lip Sync's
+    mouth cues (naming ``sound_name``, the run's clip or sound, when set), .glb the default face with
+    its ARKit shapes, the curves and the head animated."""
 
     def __init__(self, spec: str, fps: float):
-        self.path = Path(spec[len("csv:"):])
-        self.label = f"csv:{shown(self.path, 60, tail=True)}"
-        if not str(self.path) or self.path.suffix.lower() != ".csv":
+        scheme, _, rest = spec.partition(":")
+        self.path = Path(rest)
+        self.label = f"{scheme.lower()}:{shown(self.path, 60, tail=True)}"
+        suffix = self.path.suffix.lower()
+        if scheme.lower() == "csv" and (not rest or suffix != ".csv"):
             raise FaceAnimError("--to csv:PATH needs a .csv path, as in csv:take.csv")
+        if not rest or suffix not in FILE_SUFFIXES:
+            raise FaceAnimError(f"--to file:PATH needs a path ending in {', '.join(FILE_SUFFIXES)}, as in "
+                                "file:take.glb")
         self.fps = float(fps)
+        self.sound_name = ""
         self.times, self.rows = [], []
 
     def send(self, sample: LiveSample) -> None:
@@ -144,7 +158,7 @@ class CsvSink(Sink):
         self.rows.append(np.r_[sample.arkit, sample.head, sample.eyes])
 
     def close(self) -> Path | None:
-        from faceanim.io.arkit_csv import write_arkit_csv
+        from faceanim.export import Animation, write
 
         if not self.rows:
             return None
@@ -152,10 +166,17 @@ class CsvSink(Sink):
         grid = np.arange(int(np.floor((t[-1] - t[0]) * self.fps + 1e-9)) + 1) / self.fps + t[0]
         r = np.stack([np.interp(grid, t, c) for c in rows.T], axis=1)
         n = len(ARKIT_NAMES)
-        return write_arkit_csv(self.path, r[:, :n], self.fps, r[:, n:n + 3], eyes=r[:, n + 3:])
+        face = None
+        if self.path.suffix.lower() == ".glb":
+            from faceanim.face.face import Face
+
+            face = Face.load("default")
+        a = Animation(self.fps, arkit=np.clip(r[:, :n], 0.0, 1.0), head=r[:, n:n + 3], eyes=r[:, n + 3:], face=face,
+                      name="live", sound_name=self.sound_name)
+        return write(self.path, a)[0]
 
 
-KINDS = "vmc://HOST:PORT, livelink://HOST:PORT, csv:PATH or viewer[:PORT]"
+KINDS = "vmc://HOST:PORT, livelink://HOST:PORT, file:PATH (.csv .tsv .json .glb) or viewer[:PORT]"
 
 
 def parse_sinks(specs: list[str], fps: float, subject: str, face=None) -> list[Sink]:
@@ -173,8 +194,8 @@ def parse_sinks(specs: list[str], fps: float, subject: str, face=None) -> list[S
             sinks.append(VmcSink(spec))
         elif scheme == "livelink" and spec.lower().startswith("livelink://"):
             sinks.append(LiveLinkSink(spec, subject, fps))
-        elif scheme == "csv" and not spec.lower().startswith("csv://"):
-            sinks.append(CsvSink(spec, fps))
+        elif scheme in ("csv", "file") and not spec.lower().startswith(("csv://", "file://")):
+            sinks.append(FileSink(spec, fps))
         elif scheme == "viewer" and (spec == "viewer" or spec[6:7] == ":"):
             viewers.append(spec)
         else:
