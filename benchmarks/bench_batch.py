@@ -151,7 +151,7 @@ def run_dask(job, out: Path, workers: int, bind: bool, work=cli_batch.work, bind
     n_done, task_s = manifest_seconds(out)
     return {"wall": wall, "plan": plan_s, "up": up, "after": wall - plan_s - up, "n": len(tasks),
             "done": n_done, "failed": len(s.failed), "task_s": task_s, "bind_s": sum(s.bind_seconds),
-            "binds": len(s.bind_seconds), "workers": s.workers, "errors": dict(list(s.failed.items())[:2])}
+            "binds": len(s.bind_seconds), "workers": s.workers, "here": s.here, "errors": dict(list(s.failed.items())[:2])}
 
 
 # ---- trivial tasks: what the scheduler, the client and the manifest cost per task
@@ -199,8 +199,8 @@ def main() -> None:
             plain_tasks = cli_batch.plan(job, (tmp / f"{key}-plain").resolve())
             r = {"plain": measured(run_plain, plain_tasks)}
             watch.lap(f"{key} plain")
-            for name, workers, bind in (("dask 1 worker, bind once", 1, True), ("dask 2 workers, bind once", 2, True),
-                                        ("dask 2 workers, --no-bind", 2, False)):
+            for name, workers, bind in (("here, --workers 1", 1, True), ("default: here, cluster if it pays", None, True),
+                                        ("dask 2 workers, bind once", 2, True), ("dask 2 workers, --no-bind", 2, False)):
                 r[name] = measured(run_dask, job, tmp / f"{key}-{workers}-{bind}", workers, bind)
                 watch.lap(f"{key} {workers}w{'' if bind else ' no-bind'}")
             results[label] = (len(tasks), faces, r)
@@ -214,11 +214,13 @@ def main() -> None:
     # ---- table 1: throughput
     rows = []
     for label, (n, faces, r) in results.items():
-        plain, one = r["plain"]["wall"], r["dask 1 worker, bind once"]["wall"]
+        plain, one = r["plain"]["wall"], r["here, --workers 1"]["wall"]
         for name, m in r.items():
             workers = m.get("workers", 1) or 1
             wall = m["wall"]
             fails = m.get("failed", 0)
+            if name.startswith("default"):
+                name += f" ({m['here']} here, then {m['workers']} workers)" if m["workers"] else " (all here)"
             rows.append([label if name == "plain" else "", ("baseline: plain loop, 1 process" if name == "plain" else name),
                          f"{n} ({faces} faces)" + (f", {fails} FAILED" if fails else ""),
                          fmt_time(wall), fmt_time(m["up"]) if "up" in m else "-",
@@ -227,10 +229,12 @@ def main() -> None:
                          f"{one / wall / workers:.0%}" if name != "plain" else "-",
                          f"{m['cpu_self'] + m['cpu_workers']:.0f} s", f"{(m['cpu_self'] + m['cpu_workers']) / wall:.2f}",
                          f"{m['load']:.1f}"])
-    table(rows, ["job", "run", "tasks", "wall", "cluster start", "tasks/min", "tasks/min after start",
-                 "vs plain loop", "speedup vs dask 1 w", "efficiency", "CPU", "cores busy", "load before"],
-          "Throughput (wall = plan + cluster start + tasks; one fresh output folder per run)",
-          ["efficiency = (1-worker wall / this wall) / workers; vs plain loop = plain loop wall / this wall",
+    table(rows, ["job", "run", "tasks", "wall", "start", "tasks/min", "tasks/min after start",
+                 "vs plain loop", "speedup vs here", "efficiency", "CPU", "cores busy", "load before"],
+          "Throughput (wall = plan + start (a cluster's, when one starts at once) + tasks; one fresh output folder per run)",
+          ["efficiency = (--workers 1 wall / this wall) / workers; vs plain loop = plain loop wall / this wall; "
+           "'default' moves to a 2-worker cluster once the work left pays its start-up (runner.cluster_pays): "
+           "its workers column says whether it did",
            ("CPU = user + system seconds of this process (client, scheduler, plain loop) and of the worker processes; "
             "cores busy = CPU / wall (of the 2 cores); load before = 1-min load average as the run started "
             "(other people's work on the machine included)")])
@@ -243,7 +247,7 @@ def main() -> None:
                 continue
             w = m["workers"] or 1
             idle = w * m["after"] - m["task_s"] - m["bind_s"]
-            rows.append([label if name.startswith("dask 1") else "", name, f"{m['done']}",
+            rows.append([label if name.startswith("here") else "", name, f"{m['done']}",
                          fmt_time(m["task_s"]), fmt_time(m["task_s"] / max(m["done"], 1)),
                          f"{m['binds']}", fmt_time(m["bind_s"]), fmt_time(m["bind_s"] / max(m["binds"], 1)),
                          fmt_time(m["after"]), fmt_time(idle), fmt_time(idle / max(m["n"], 1)),
@@ -256,7 +260,8 @@ def main() -> None:
 
     rows = []
     for w, m in trivial.items():
-        rows.append([f"{w}", f"{m['n']}", fmt_time(m["up"]), fmt_time(m["after"]), f"{per_min(m['n'], m['after']):.0f}",
+        rows.append([f"{w}" + (" (this process)" if w == 1 else " (LocalCluster)"), f"{m['n']}", fmt_time(m["up"]),
+                     fmt_time(m["after"]), f"{per_min(m['n'], m['after']):.0f}",
                      fmt_time(m["after"] / m["n"]), fmt_time(m["plan"])])
     table(rows, ["workers", "trivial tasks", "cluster start", "wall after start", "tasks/min", "per task", "plan"],
           "Scheduler overhead: trivial tasks (3 trivially bound faces) through the same runner and manifest",
@@ -264,7 +269,7 @@ def main() -> None:
 
     # ---- projection
     a = results[next(iter(results))][2]
-    one, two = a["dask 1 worker, bind once"], a["dask 2 workers, bind once"]
+    one, two = a["here, --workers 1"], a["dask 2 workers, bind once"]
     bind_1 = one["bind_s"] / max(one["binds"], 1)
     over_serial = trivial[2]["after"] / trivial[2]["n"]  # client + scheduler, serial: the throughput ceiling
     plan_per_task = two["plan"] / two["n"]
@@ -274,7 +279,7 @@ def main() -> None:
         + max(0.0, one["after"] - one["task_s"] - one["bind_s"]) / one["n"],
         "wall, 2 workers": two["task_s"] / two["done"]
         + max(0.0, 2 * two["after"] - two["task_s"] - two["bind_s"]) / two["n"],
-        "CPU, 1 worker": (one["cpu_workers"] - one["bind_s"]) / one["n"],
+        "CPU, 1 worker": (one["cpu_self"] + one["cpu_workers"] - one["bind_s"]) / one["n"],
     }
     rows = []
     for basis, per_task in bases.items():

@@ -769,3 +769,71 @@ def test_options_are_files_only_where_the_command_takes_a_file(tmp_path, capsys)
                                     "output: '{face}.obj'\n")
     rc, _, err = run_main(["batch", job, "-o", tmp_path / "out"], capsys)
     assert rc == 2 and "option 'landmarks'" in err and "line 4" in err and "is not a file" in err, err
+
+
+# ------------------------------------------------------------------- in this process or on a cluster
+
+
+def test_a_cluster_pays_only_for_enough_work_left():
+    from faceanim.batch.runner import CLUSTER_START, cluster_pays
+
+    # two workers halve the time left: it pays once half of it exceeds the start-up and a bind
+    assert not cluster_pays(0.5, 0.0, 12, 2)  # 6 s left: 3 s saved < 5 s start-up (a plain loop wins)
+    assert cluster_pays(1.0, 0.0, 12, 2)  # 12 s left: 6 s saved
+    assert not cluster_pays(1.0, 2.0, 12, 2)  # ...but not if every worker binds a face for 2 s again
+    assert not cluster_pays(100.0, 0.0, 1, 8) and not cluster_pays(100.0, 0.0, 50, 1)  # one task, one core
+    saved = lambda left, sec, n: left * sec * (1 - 1 / n)  # noqa: E731 -- the rule, written out
+    for left, sec, n in itertools.product((2, 5, 40), (0.1, 0.4, 3.0), (2, 4)):
+        assert cluster_pays(sec, 0.0, left, n) == (saved(left, sec, n) > CLUSTER_START)
+
+
+def test_a_small_batch_runs_here_and_a_long_one_moves_the_rest_to_a_cluster(tmp_path, monkeypatch):
+    from faceanim.batch import runner
+    from faceanim.batch.runner import PlannedTask, run
+
+    calls = []
+
+    def work(argv, out_dir, bound):
+        calls.append((argv[0], sorted(bound)))
+        time.sleep(float(argv[1]))
+        return {"state": "done", "outputs": [argv[0]], "error": "", "seconds": float(argv[1])}
+
+    moved = {}
+
+    def cluster_run(client, todo, *rest):
+        moved["todo"] = [t.output for t in todo]
+
+    monkeypatch.setattr(runner, "_client", lambda scheduler, workers: type("C", (), {"cluster": None,
+                                                                                    "close": lambda self: None})())
+    monkeypatch.setattr(runner, "_run_cluster", cluster_run)
+    monkeypatch.setattr(runner.os, "cpu_count", lambda: 2)
+    bound = []
+    tasks = lambda sec: [PlannedTask(f"t{k}", [f"t{k}", str(sec)], ("face",), f"s{k}")  # noqa: E731
+                         for k in range(8)]
+    s = run(tasks(0.01), tmp_path / "small", lambda f: bound.append(f) or f, work)
+    assert s.here == 8 and sorted(s.done) == [f"t{k}" for k in range(8)] and "todo" not in moved
+    assert bound == ["face"] and all(b == ["face"] for _, b in calls)  # the face bound once, here
+    assert rows(tmp_path / "small") == {f"t{k}": ("done", [f"t{k}"], "") for k in range(8)}
+    # 1.6 s a task: after the first, 7 left x 1.6 s x 1/2 saved > 5 s of start-up -> the rest move
+    s = run(tasks(1.6), tmp_path / "long", lambda f: f, work)
+    assert s.here == 1 and moved["todo"] == [f"t{k}" for k in range(1, 8)]
+    assert rows(tmp_path / "long") == {"t0": ("done", ["t0"], "")}
+    # --workers 1: never a cluster
+    moved.clear()
+    s = run(tasks(1.6)[:4], tmp_path / "one", lambda f: f, work, workers=1)
+    assert s.here == 4 and "todo" not in moved
+
+
+def test_a_small_batch_in_this_process_matches_direct_runs(tmp_path, capsys):
+    meshes = tmp_path / "meshes"
+    for name, kind in (("a", "sphere"), ("b", "box")):
+        save_shape(meshes / f"{name}.obj", kind)
+    job = write(tmp_path, "render.yaml",
+                "operation: render\ninputs:\n  face: meshes/*.obj\noptions: {size: 64}\noutput: '{face}.png'\n")
+    expected = {n: direct_render(meshes / f"{n}.obj", tmp_path / f"ref-{n}.png", capsys) for n in "ab"}
+    p = batch(job, tmp_path / "out", "--quiet")
+    assert p.returncode == 0, p.stderr
+    assert "on this process" in p.stdout and "local cluster of" not in p.stdout, p.stdout
+    for n in "ab":
+        assert (tmp_path / "out" / f"{n}.png").read_bytes() == expected[n]
+    assert p.stderr == ""

@@ -148,8 +148,14 @@ def arkit_from_stream(face: Face, rig: FapRig, stream: FapStream) -> tuple[np.nd
         raise FaceAnimError("the face shows no skin towards the camera to fit ARKit curves on")
     rows = visible[np.unique(np.linspace(0, len(visible) - 1, min(ARKIT_FIT_VERTICES, len(visible))).astype(int))]
     a = np.stack([arkit.blendshape(n)[rows].ravel() for n in arkit.controls], axis=1)
-    ridge = np.sqrt(ARKIT_FIT_RIDGE * np.mean(np.sum(a ** 2, axis=0)))
-    a_ridge = np.vstack([a, ridge * np.eye(a.shape[1])])
+    ridge = ARKIT_FIT_RIDGE * np.mean(np.sum(a ** 2, axis=0))
+    # the ridge-regularised least squares ||a w - d||^2 + ridge ||w||^2 has the same minimiser as
+    # ||L^T w - L^-1 a^T d||^2 with L L^T = a^T a + ridge I: each frame's bounded solve is then on a
+    # 52 x 52 system instead of 9,000 x 52 (about 100x faster, the same weights)
+    from scipy.linalg import cho_factor, solve_triangular
+
+    low, _ = cho_factor(a.T @ a + ridge * np.eye(a.shape[1]), lower=True)
+    low = np.tril(low)
     out = np.zeros((len(curves), len(ARKIT_NAMES)))
     column = [[apple_name(n) for n in ARKIT_NAMES].index(c) for c in arkit.controls]
     rest = face.mesh.vertices[rows]
@@ -160,7 +166,7 @@ def arkit_from_stream(face: Face, rig: FapRig, stream: FapStream) -> tuple[np.nd
             d = d.ravel()
             if not np.any(d):
                 continue
-            fit = lsq_linear(a_ridge, np.r_[d, np.zeros(a.shape[1])], bounds=(0.0, 1.0), method="bvls")
+            fit = lsq_linear(low.T, solve_triangular(low, a.T @ d, lower=True), bounds=(0.0, 1.0), method="bvls")
             out[f0 + j, column] = fit.x
             residual += float(np.sum((a @ fit.x - d) ** 2))
             total += float(np.sum(d ** 2))

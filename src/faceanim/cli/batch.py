@@ -278,14 +278,20 @@ def _cmd_batch(args) -> None:
     def started(summary) -> None:
         bar.total = len(tasks) - len(summary.skipped)
         bar.refresh()
-        where = args.scheduler or f"a local cluster of {summary.workers} worker processes"
-        print(f"{len(tasks)} tasks ({len(summary.skipped)} done before) on {shown(where, 80)}"
+        where = (args.scheduler or f"a local cluster of {summary.workers} worker processes" if summary.workers
+                 else "this process (moving to a local cluster if the work proves long enough to pay its start-up)"
+                 if args.workers is None else "this process")
+        print(f"{len(tasks)} tasks ({len(summary.skipped)} done before) on {shown(where, 120)}"
               + (f"; dashboard {summary.dashboard}" if summary.dashboard else ""), flush=True)
+
+    def moved(summary, left: int) -> None:
+        print(f"{summary.here} tasks done here in {sum(summary.task_seconds):.1f} s; the {left} left go to a local "
+              "cluster", flush=True)
 
     try:
         summary = run(tasks, out_dir, bind, work, scheduler=args.scheduler, workers=args.workers,
                       retries=args.retries, bind_faces=not args.no_bind,
-                      progress=lambda n: bar.update(n - bar.n), on_start=started)
+                      progress=lambda n: bar.update(n - bar.n), on_start=started, on_cluster=moved)
     finally:
         bar.close()
     print(f"{len(summary.done)} done, {len(summary.skipped)} skipped (done before), {len(summary.failed)} failed "
@@ -301,8 +307,10 @@ def register(sub) -> None:
     from faceanim.cli.common import _arg_type
 
     p = sub.add_parser("batch", help=HELP["batch"],
-                       description="Run one faceanim command over every combination of its inputs, on Dask: a "
-                                   "LocalCluster on this machine, or the cluster at --scheduler. The job file "
+                       description="Run one faceanim command over every combination of its inputs: in this "
+                                   "process while the work is small, on a Dask LocalCluster on this machine once "
+                                   "the work left pays its start-up (or at once with --workers N), or on the "
+                                   "cluster at --scheduler. The job file "
                                    "(YAML or JSON) has operation, inputs (each input by its CLI name: a path, a "
                                    "glob, a list, or a pattern on an earlier input such as clips/{audio}.txt), "
                                    "options, and output (a file-name pattern under OUTDIR with {name} the stem of "
@@ -312,7 +320,8 @@ def register(sub) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler, e.g. tcp://host:8786 "
                                                           "(default: start a local cluster)")
     p.add_argument("--workers", type=_arg_type("--workers", 1, MAX_WORKERS, integer=True),
-                   help="worker processes of the local cluster (default: one per core)")
+                   help="worker processes of a local cluster started at once (1: every task in this process; "
+                        "default: this process first, then one worker per core if the work is long)")
     p.add_argument("--retries", type=_arg_type("--retries", 0, MAX_RETRIES, integer=True), default=2,
                    help="times a task that crashes is tried again")
     p.add_argument("--no-bind", action="store_true", help="bind the face in every task instead of once per face "
