@@ -432,3 +432,17 @@ def test_ffmpeg_failure_is_one_line_without_its_log(tmp_path, monkeypatch):
         write_video(tmp_path / "x.mp4", (np.zeros((64, 64, 3), np.uint8) for _ in range(5)))
     assert "passwd" not in str(exc.value) and "\n" not in str(exc.value) and "ffmpeg could not" in str(exc.value)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_pipelined_frames_are_the_frames_rendered_one_by_one(face):
+    """render_frames draws frame k+1 before reading frame k back (two framebuffers in turn): the
+    pictures, their order and the pose left for render() are those of rendering each in turn."""
+    width = np.ptp(face.vertices[:, 0])
+    poses = [face.vertices + [dx * width, 0.0, 0.0] for dx in (0.0, 0.1, -0.1, 0.2, 0.05)]
+    with OffscreenRenderer(face, size=(96, 96), parallel=True, frame_vertices=face.vertices, margin=2.0) as r:
+        one_by_one = [r.render(v) for v in poses]
+        piped = list(r.render_frames(iter(poses)))
+        assert len(piped) == len(poses) and all(np.array_equal(a, b) for a, b in zip(one_by_one, piped))
+        assert len({a.tobytes() for a in piped}) == len(poses)  # the poses differ on screen
+        assert np.array_equal(r.render(), one_by_one[-1])
+        assert list(r.render_frames(iter([]))) == []

@@ -96,7 +96,7 @@ def read_arkit_csv(path: str | os.PathLike) -> ArkitTake:
         raise InputFileError(f"ARKit take '{name}' is {p.stat().st_size / 2**20:.0f} MiB; give at most "
                              f"{MAX_BYTES // 2**20} MiB (split the take)")
     try:
-        with open(p, newline="", encoding="utf-8") as fh:
+        with open(p, newline="", encoding="utf-8-sig") as fh:  # a BOM (Excel, the app on Windows) is skipped
             rows = csv.reader(fh)
             header = next(rows, None)
             if not header:
@@ -118,6 +118,9 @@ def read_arkit_csv(path: str | os.PathLike) -> ArkitTake:
                 where = f"ARKit take '{name}' line {line}"
                 if len(row) < len(header):
                     raise InputFileError(f"{where}: {len(row)} cells for {len(header)} columns (a truncated row)")
+                if len(row) > len(header) and any(c.strip() for c in row[len(header):]):
+                    raise InputFileError(f"{where}: {len(row)} cells for {len(header)} columns (a cell with no "
+                                         "column: a damaged or hand-edited row); fix the row or re-export the take")
                 times.append(_timecode(row[col["Timecode"]], where))
                 try:
                     v = [float(row[i]) for i in numeric]

@@ -24,7 +24,7 @@ import numpy as np
 from faceanim.errors import FaceAnimError, InputFileError
 from faceanim.face.faps import N_FAPS, FapStream
 from faceanim.io.files import atomic_output
-from faceanim.limits import MAX_FPS, MAX_FRAMES
+from faceanim.limits import MAX_DURATION, MAX_FPS, MAX_FRAMES
 
 VERSION = "2.1"
 
@@ -92,6 +92,9 @@ def parse_fap(text: str, path: str = "<fap>") -> FapStream:
     if count > MAX_FRAMES:
         raise InputFileError(f"{path}:{n0}: the header promises {count:g} frames, more than faceanim's limit "
                              f"of {MAX_FRAMES}")
+    if count / fps > MAX_DURATION:
+        raise InputFileError(f"{path}:{n0}: {count:g} frames at {fps:g} fps last {count / fps:.3g} s, more than "
+                             f"faceanim's limit of {MAX_DURATION:g} s; check the frame rate in the header")
     count = int(count)
     name = " ".join(tokens[1:-2])
     body = lines[1:]

@@ -313,8 +313,12 @@ def build_gltf(mesh: Mesh, blendshapes: Mapping[str, np.ndarray] | None = None,
     gltf.scene = 0
 
     if times is not None:
-        t = np.asarray(times, dtype=np.float32)
-        w = np.asarray(weights, dtype=np.float32)
+        with np.errstate(over="ignore", invalid="ignore"):  # out of float32's range: refused below
+            t = np.asarray(times, dtype=np.float32)
+            w = np.asarray(weights, dtype=np.float32)
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(w))):
+            raise FaceAnimError("animation times and weights must be finite 32-bit numbers (a frame rate far too "
+                                "small makes the times overflow); check the frame rate")
         if not names:
             raise FaceAnimError("an animation needs blendshapes to drive")
         if t.ndim != 1 or w.shape != (t.size, len(names)):

@@ -9,6 +9,7 @@ every renderer of a process (making an EGL context is slow).
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterator
 import os
 import threading
 
@@ -310,15 +311,20 @@ class OffscreenRenderer:
                         for first in range(0, len(faces), per_chunk)]
         self._vao = self._keep(ctx.vertex_array(self._program, content, index_buffer=index, index_element_size=4))
 
+        self._fbo, self._resolved = self._framebuffers(ctx)
+        self._fbo2 = self._resolved2 = None  # the second pair, made when frames are pipelined
+        self._upload(mesh.vertices)
+
+    def _framebuffers(self, ctx) -> tuple:
+        """A framebuffer to draw into (multisampled if :data:`SAMPLES`) and the one read back."""
         samples = min(SAMPLES, ctx.max_samples)
-        self._fbo = self._keep(ctx.framebuffer(
+        fbo = self._keep(ctx.framebuffer(
             color_attachments=[self._keep(ctx.renderbuffer(self.size, 4, samples=samples))],
             depth_attachment=self._keep(ctx.depth_renderbuffer(self.size, samples=samples))))
-        self._resolved = self._fbo
+        resolved = fbo
         if samples > 1:
-            self._resolved = self._keep(ctx.framebuffer(
-                color_attachments=[self._keep(ctx.renderbuffer(self.size, 4))]))
-        self._upload(mesh.vertices)
+            resolved = self._keep(ctx.framebuffer(color_attachments=[self._keep(ctx.renderbuffer(self.size, 4))]))
+        return fbo, resolved
 
     def _keep(self, resource):
         self._resources.append(resource)
@@ -367,31 +373,57 @@ class OffscreenRenderer:
     def render(self, vertices: np.ndarray | None = None) -> np.ndarray:
         """(H, W, 3) uint8 image of the mesh, optionally with other vertex positions (which
         stay for later calls without ``vertices``)."""
+        self._draw(vertices, self._fbo)
+        return self._read(self._fbo, self._resolved)
+
+    def render_frames(self, vertex_frames) -> Iterator[np.ndarray]:
+        """The image of each (V, 3) vertex array of ``vertex_frames`` in turn, as :meth:`render`
+        makes it, pipelined: frame k+1 is evaluated, uploaded and drawn (its vertices shaded and
+        its triangles binned in this thread) while llvmpipe's threads still rasterise frame k,
+        which is read back only then (two framebuffers in turn)."""
+        if self._fbo2 is None:
+            with _gl_lock, self.ctx:
+                self._fbo2, self._resolved2 = self._framebuffers(self.ctx)
+        targets = ((self._fbo, self._resolved), (self._fbo2, self._resolved2))
+        pending = None
+        for k, vertices in enumerate(vertex_frames):
+            target = targets[k % 2]
+            self._draw(vertices, target[0])
+            if pending is not None:
+                yield self._read(*pending)
+            pending = target
+        if pending is not None:
+            yield self._read(*pending)
+
+    def _draw(self, vertices, fbo) -> None:
         import moderngl
 
         if self._vao is None:
             raise FaceAnimError("this renderer is closed")
         ctx = self.ctx
-        w, h = self.size
-        image = np.empty((h, w, 3), dtype=np.uint8)
         with _gl_lock, ctx:  # current on this thread even if another library made its own current
             if vertices is not None:
                 self._upload(vertices)
-            self._fbo.use()
+            fbo.use()
             ctx.enable_only(moderngl.DEPTH_TEST)
             ctx.front_face = "cw"
-            self._fbo.clear(*self.background, 1.0, depth=1.0)
+            fbo.clear(*self.background, 1.0, depth=1.0)
             self._set_uniforms()
             if self._texture is not None:
                 self._texture.use(0)
             flush = _state.get("flush")
             for k, (first, count) in enumerate(self._chunks):
                 self._vao.render(moderngl.TRIANGLES, vertices=count, first=first)
-                if flush is not None and k + 1 < len(self._chunks):
+                if flush is not None:  # the last chunk too: its frame rasterises while the next is drawn
                     flush()
-            if self._resolved is not self._fbo:
-                ctx.copy_framebuffer(self._resolved, self._fbo)
-            self._resolved.read_into(image, components=3, alignment=1)
+
+    def _read(self, fbo, resolved) -> np.ndarray:
+        w, h = self.size
+        image = np.empty((h, w, 3), dtype=np.uint8)
+        with _gl_lock, self.ctx:
+            if resolved is not fbo:
+                self.ctx.copy_framebuffer(resolved, fbo)
+            resolved.read_into(image, components=3, alignment=1)
         return image
 
     def pixel_rays(self, xy_normalised: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

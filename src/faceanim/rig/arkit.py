@@ -268,15 +268,29 @@ def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.nda
     return dy[:, None] * fr.rotation[1]
 
 
-LID_PASSES = 2  # closures applied in turn: the second closes what the first left (a slit the first could not see)
+LID_PASSES = 2  # closures at most: a second closes what the first left, if the first did close
+LID_SHUT = 0.02  # an eye showing less than this share of its opening is shut
 
 
 def closed_blink(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.ndarray:
-    """A carried blink with its lids closed: :func:`_lid_closure` applied :data:`LID_PASSES` times,
-    each on what the one before left open (one pass leaves a few percent of an anime eye open where
-    the lids' first meeting line is off by a ray's spacing; the second closes it)."""
-    for _ in range(LID_PASSES):
+    """A carried blink with its lids closed by :func:`_lid_closure`, then, while an eye still shows
+    more than :data:`LID_SHUT` of its opening and the pass before at least halved what was left,
+    again (up to :data:`LID_PASSES`): one pass can leave a tenth of an anime eye open where the
+    lids' meeting line is off by a ray's spacing. A pass that hardly closes anything (the opening
+    measure sees through a mesh's transparent eye overlays) is not repeated."""
+    rest = eye_opening(face, slit, eyes)
+    if rest is None or rest.area <= 0:
+        return blink
+    area = lambda d: getattr(eye_opening(face, slit, eyes, face.mesh.vertices + d), "area", 0.0)  # noqa: E731
+    before = area(blink)
+    for k in range(LID_PASSES):
         blink = blink + _lid_closure(face, blink, slit, eyes)
+        if k + 1 == LID_PASSES:
+            break
+        after = area(blink)
+        if after <= LID_SHUT * rest.area or after > 0.5 * before:
+            break
+        before = after
     return blink
 
 
