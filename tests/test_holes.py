@@ -68,3 +68,101 @@ def test_the_gltf_writer_refuses_times_beyond_float32(tmp_path):
         write_gltf(tmp_path / "x.glb", mesh, {"a": np.ones((3, 3))}, times=np.array([0.0, 1e39]),
                    weights=np.array([[0.0], [1.0]]))
     assert not (tmp_path / "x.glb").exists()
+
+
+# -------------------------------------------------------------- 1, 9: the viewer serves what it was given
+def _animated_glb(folder, sound_name="voice.wav"):
+    from faceanim.face.mesh import Mesh
+    from faceanim.io.gltf import write_gltf
+
+    mesh = Mesh(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
+    return write_gltf(folder / "m.glb", mesh, {"a": np.full((3, 3), 0.1)}, times=np.array([0.0, 1.0]),
+                      weights=np.array([[0.0], [1.0]]), extras={"audio": sound_name})
+
+
+def test_view_never_serves_a_file_a_sound_link_points_at(tmp_path):
+    import http.client
+    import threading
+
+    from faceanim.io.audio import write_wav
+    from faceanim.viewer import server as srv
+
+    secret = tmp_path / "secret.txt"
+    secret.write_text("a private key")
+    glb = _animated_glb(tmp_path)
+    (tmp_path / "voice.wav").symlink_to(secret)
+    assert srv.check_model(glb).sound is None  # a link named by the file is not the model's sound
+    (tmp_path / "voice.wav").unlink()
+    (tmp_path / "voice.wav").write_text("not a wav at all")
+    assert srv.check_model(glb).sound is None  # nor is a file that is not a WAV
+    write_wav(tmp_path / "voice.wav", np.zeros(1600), 16000)
+    model = srv.check_model(glb)
+    assert model.sound == tmp_path / "voice.wav"
+    server = srv.ViewerServer(srv.Viewer(model), 0)
+    threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True).start()
+    try:
+        port = server.server_address[1]
+
+        def get(path):
+            c = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+            c.request("GET", path, headers={"Host": f"127.0.0.1:{port}"})
+            r = c.getresponse()
+            return r.status, r.read()
+
+        status, body = get("/sound")
+        assert status == 200 and body[:4] == b"RIFF"
+        # swapped for a link while the viewer runs: refused at the request, not only at start
+        (tmp_path / "voice.wav").unlink()
+        (tmp_path / "voice.wav").symlink_to(secret)
+        status, body = get("/sound")
+        assert status == 404 and b"private" not in body
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def test_view_outlives_a_flood_of_idle_slow_and_oversized_clients_and_stops_at_once(tmp_path):
+    import socket
+    import time
+
+    from test_viewer import _start, needs_vendor
+
+    if needs_vendor.args[0]:
+        pytest.skip(needs_vendor.kwargs["reason"])
+    p, url, port = _start([_animated_glb(tmp_path), "--port", "0"])
+    socks = []
+    try:
+        for _ in range(300):  # idle: connect, say nothing
+            socks.append(socket.create_connection(("127.0.0.1", port), timeout=5))
+        for _ in range(3):  # slowloris: a byte of a request now and then
+            s = socket.create_connection(("127.0.0.1", port), timeout=5)
+            s.sendall(b"GET / HTTP/1.1\r\nHost: ")
+            socks.append(s)
+        for size in (70_000, 1 << 20):  # a header line and a body far over the limits
+            s = socket.create_connection(("127.0.0.1", port), timeout=5)
+            try:
+                s.sendall(b"GET /api/info HTTP/1.1\r\nHost: 127.0.0.1:%d\r\nX: " % port + b"a" * size + b"\r\n\r\n")
+            except OSError:
+                pass  # cut off mid-send: refused
+            socks.append(s)
+        # a browser still gets its answer, promptly
+        start = time.monotonic()
+        c = socket.create_connection(("127.0.0.1", port), timeout=10)
+        c.sendall(b"GET /api/info HTTP/1.1\r\nHost: 127.0.0.1:%d\r\nConnection: close\r\n\r\n" % port)
+        reply = b""
+        while chunk := c.recv(65536):
+            reply += chunk
+        c.close()
+        assert reply.startswith(b"HTTP/1.1 200") and b'"sound"' in reply
+        assert time.monotonic() - start < 5
+        # and Ctrl-C stops it within a second, whatever the clients do: exit 0
+        p.send_signal(__import__("signal").SIGINT)
+        start = time.monotonic()
+        code = p.wait(timeout=10)
+        assert time.monotonic() - start < 1.0 and code == 0
+    finally:
+        for s in socks:
+            s.close()
+        if p.poll() is None:
+            p.kill()
+            p.wait()

@@ -95,7 +95,49 @@ def _join_axis_values(argv: list[str]) -> list[str]:
     return out
 
 
+class Interrupted(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where the command is so that it unwinds as on Ctrl-C: temporary
+    files and folders removed, no partial output, an existing output untouched."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_interrupted(signum, frame) -> None:
+    raise Interrupted(signum)
+
+
+def _stop_signals() -> dict:
+    """SIGTERM and SIGHUP raise :class:`Interrupted` (in the main thread, unless ignored on purpose,
+    as nohup does); returns the handlers to put back."""
+    import signal
+    import threading
+
+    previous = {}
+    if threading.current_thread() is not threading.main_thread():
+        return previous
+    for sig in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)):
+        if sig is None:
+            continue
+        current = signal.getsignal(sig)
+        if current in (signal.SIG_DFL, signal.default_int_handler):
+            previous[sig] = signal.signal(sig, _raise_interrupted)
+    return previous
+
+
 def main(argv: list[str] | None = None) -> int:
+    previous = _stop_signals()
+    try:
+        return _main(argv)
+    finally:
+        import signal
+
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _main(argv: list[str] | None = None) -> int:
     argv = _join_axis_values(list(sys.argv[1:] if argv is None else argv))
     command = next((a for a in argv if not a.startswith("-")), "")
     args = build_parser(command).parse_args(argv)
@@ -112,9 +154,12 @@ def main(argv: list[str] | None = None) -> int:
         message = "".join(c if c.isprintable() else "?" for c in str(exc))
         print(f"faceanim {name}: error: {message}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("faceanim: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C (SIGINT), SIGTERM, SIGHUP: exit 128 + the signal's number
+        import signal
+
+        signum = getattr(exc, "signum", signal.SIGINT)
+        print(f"faceanim: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
+        return 128 + int(signum)
     except MemoryError:
         print(f"faceanim {name}: error: out of memory; try a smaller input, --size or --frames", file=sys.stderr)
         return 2

@@ -41,18 +41,14 @@ def _cmd_view(args) -> None:
             raise CommandError(f"--save-points '{shown(save, 80, tail=True)}' is also an input; give it its own path")
         check_outputs(save)
     server = ViewerServer(Viewer(model, photos, save), args.port)
-    url = server.url
-    print(f"faceanim view: {model.path.name} ({model.kind}) at {url}  (Ctrl-C to stop)", flush=True)
-    if not args.no_browser:
-        import webbrowser
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM stops as Ctrl-C does
+    try:  # from here any stop (Ctrl-C, SIGTERM, SIGHUP) is the normal end: exit 0
+        url = server.url
+        print(f"faceanim view: {model.path.name} ({model.kind}) at {url}  (Ctrl-C to stop)", flush=True)
+        if not args.no_browser:
+            import webbrowser
 
-        threading.Thread(target=webbrowser.open, args=(url,), daemon=True).start()
-
-    def stop(signum, frame):
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, stop)
-    try:
+            threading.Thread(target=webbrowser.open, args=(url,), daemon=True).start()
         server.serve_forever(poll_interval=0.2)
     except KeyboardInterrupt:
         print("faceanim view: stopped", file=sys.stderr, flush=True)

@@ -107,16 +107,36 @@ def check_output_path(path: str | os.PathLike, what: str = "output") -> Path:
                               "replaced; choose another path")
     if len(p.name.encode("utf-8", "surrogateescape")) > 255:
         raise OutputError(f"cannot write {what} '{sp}': the file name is longer than 255 bytes; use a shorter name")
-    # the only sure test of a writable folder (read-only mounts, ACLs, root on /sys): try it
-    try:
-        fd, probe = tempfile.mkstemp(prefix=f".probe{_TEMP_MARK}{os.getpid()}-", suffix=".tmp", dir=parent)
-    except OSError as exc:
-        raise OutputError(f"cannot write {what} '{sp}': folder '{sparent}' is not writable ({_reason(exc)}); "
-                          "choose another folder") from None
-    os.close(fd)
-    with contextlib.suppress(OSError):
-        os.unlink(probe)
+    # the only sure test of a writable folder (read-only mounts, ACLs, root on /sys): try it, with
+    # Ctrl-C, SIGTERM and SIGHUP held until the probe is gone (a stop in between would leave it)
+    with signals_held():
+        try:
+            fd, probe = tempfile.mkstemp(prefix=f".probe{_TEMP_MARK}{os.getpid()}-", suffix=".tmp", dir=parent)
+        except OSError as exc:
+            raise OutputError(f"cannot write {what} '{sp}': folder '{sparent}' is not writable ({_reason(exc)}); "
+                              "choose another folder") from None
+        os.close(fd)
+        with contextlib.suppress(OSError):
+            os.unlink(probe)
     return p
+
+
+_HELD = tuple(s for s in (getattr(signal, "SIGINT", None), getattr(signal, "SIGTERM", None),
+                          getattr(signal, "SIGHUP", None)) if s is not None)
+
+
+@contextlib.contextmanager
+def signals_held():
+    """Hold SIGINT, SIGTERM and SIGHUP in this thread for the block (a few system calls that must
+    not be cut between them); one that came in is handled as the block ends."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 # ---------------------------------------------------------------------- live temporary files
@@ -126,17 +146,12 @@ _previous: dict[int, object] = {}  # signal -> handler before ours, while ours i
 _SIGNALS = tuple(s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)) if s is not None)
 
 
-def _remove_live_temps() -> None:
-    for tmp in list(_live):
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        _live.discard(tmp)
-
-
 def _on_signal(signum, frame) -> None:
-    """SIGTERM/SIGHUP during a write: remove the temporary files, then exit 128 + signum (or hand
-    over to the handler that was there before ours)."""
-    _remove_live_temps()
+    """SIGTERM/SIGHUP during a write: hand over to the handler that was there before ours (the
+    ``faceanim`` command's raises, so the write unwinds), else exit 128 + signum by SystemExit; either
+    way :func:`atomic_output` removes its temporary file as the exception passes (after a writer
+    that runs a process, such as ffmpeg, has stopped it: removing the file first would leave the
+    process writing into a vanished file)."""
     previous = _previous.get(signum)
     if callable(previous):
         previous(signum, frame)
@@ -239,14 +254,16 @@ def atomic_output(path: str | os.PathLike, what: str = "output") -> Iterator[Pat
     remove_stale_temps(parent)
     stem = path.stem[:_MAX_TEMP_STEM]
     suffix = path.suffix if len(path.suffix) <= 16 else ""
+    tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{stem}{_TEMP_MARK}{os.getpid()}-", suffix=suffix, dir=parent)
-    except OSError as exc:
-        raise OutputError(f"cannot write {what} '{path}': {_reason(exc)}; choose another path") from None
-    os.close(fd)
-    _register(tmp)
-    tmp_path = Path(tmp)
-    try:
+        with signals_held():  # the temporary file is made and registered with no stop between
+            try:
+                fd, tmp = tempfile.mkstemp(prefix=f".{stem}{_TEMP_MARK}{os.getpid()}-", suffix=suffix, dir=parent)
+            except OSError as exc:
+                raise OutputError(f"cannot write {what} '{path}': {_reason(exc)}; choose another path") from None
+            os.close(fd)
+            _register(tmp)
+        tmp_path = Path(tmp)
         try:
             yield tmp_path
         except OSError as exc:
@@ -262,9 +279,10 @@ def atomic_output(path: str | os.PathLike, what: str = "output") -> Iterator[Pat
         except OSError as exc:
             raise OutputError(f"cannot write {what} '{path}': {_reason(exc)}") from None
     finally:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        _unregister(tmp)
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            _unregister(tmp)
 
 
 def check_input_file(path: str | os.PathLike, what: str, give: str) -> Path:

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import queue
+import sys
 import threading
 from pathlib import Path
 
@@ -124,9 +126,16 @@ def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=Non
                 raise FaceAnimError("no frames to write")
             pump.finish()
         finally:
+            stopped = sys.exc_info()[1]
+            interrupted = stopped is not None and not isinstance(stopped, Exception)  # Ctrl-C, SIGTERM, SIGHUP
             if pump is not None:
                 pump.stop()
-            if writer is not None:
+            if writer is not None and interrupted:
+                # ffmpeg is killed, not left to finish a file about to be removed (it would complain
+                # about the vanished file on the terminal)
+                with contextlib.suppress(BaseException):
+                    writer.throw(KeyboardInterrupt)
+            elif writer is not None:
                 try:
                     writer.close()
                 except Exception as exc:  # noqa: BLE001 - ffmpeg's exit status, with its raw log

@@ -12,7 +12,12 @@ Bound to 127.0.0.1 only. It serves, by fixed routes and never by a path from the
   ``--save-points`` file (the only file it writes).
 
 Requests whose ``Host`` is not this server's own address (DNS rebinding) and posts from another
-origin are refused.
+origin are refused. A file is served only if it is what was given: the sound must be a regular
+WAV file in the model's own folder, never a symbolic link (its name comes from the model file, so
+a link could point anywhere), and it is opened without following one. Each connection waits at
+most :data:`REQUEST_SECONDS` for a request (a client that trickles headers is cut off), at most
+:data:`MAX_CLIENTS` are served at once (a new one cuts the connection that has waited longest for
+its request), and a stop (Ctrl-C) never waits for a client.
 """
 
 from __future__ import annotations
@@ -42,6 +47,8 @@ MAX_MODEL_BYTES = 2 << 30
 MAX_POST_BYTES = 8 << 20
 HOST = "127.0.0.1"
 DEFAULT_PORT = 8760
+REQUEST_SECONDS = 10.0  # a connection's socket timeout: an idle or slow client is let go after this
+MAX_CLIENTS = 64  # connections served at once; a new one past this cuts the longest-waiting idle one
 PATH_SHOWN = 80
 
 
@@ -120,12 +127,34 @@ def check_model(path: str | os.PathLike) -> Model:
 
 
 def _sound(model: Path, extras: dict) -> Path | None:
-    """The sound an animated GLB names in its scene extras (a .wav beside it), if it is there."""
+    """The sound an animated GLB names in its scene extras: a regular ``.wav`` file (RIFF/WAVE)
+    beside it, not a symbolic link, or None."""
     named = extras.get("audio")
     if not isinstance(named, str) or Path(named).name != named or not named.lower().endswith(".wav"):
         return None
     wav = model.with_name(named)
-    return wav if wav.is_file() else None
+    if wav.is_symlink() or not wav.is_file():
+        return None
+    try:
+        with open_no_link(wav) as fh:
+            head = fh.read(12)
+    except OSError:
+        return None
+    return wav if head[:4] == b"RIFF" and head[8:12] == b"WAVE" else None
+
+
+def open_no_link(path: Path):
+    """``path`` opened for reading, refused (OSError) if it is a symbolic link or not a regular file."""
+    import stat
+
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError("not a regular file")
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
 
 
 @dataclass
@@ -205,6 +234,18 @@ class _Handler(BaseHTTPRequestHandler):
     server_version = "faceanim-view"
     sys_version = ""
     protocol_version = "HTTP/1.1"
+    timeout = REQUEST_SECONDS  # socket timeout: a client that sends nothing, or trickles, is let go
+
+    def handle_one_request(self) -> None:
+        self.server.waiting(self.connection, True)  # the request's head must come within REQUEST_SECONDS
+        try:
+            super().handle_one_request()
+        finally:
+            self.server.waiting(self.connection, False)
+
+    def parse_request(self) -> bool:
+        self.server.waiting(self.connection, False)  # the head has come: the answer may take its time
+        return super().parse_request()
 
     @property
     def viewer(self) -> Viewer:
@@ -235,10 +276,11 @@ class _Handler(BaseHTTPRequestHandler):
     def _error(self, status: int, message: str) -> None:
         self._json(status, {"error": message})
 
-    def _file(self, path: Path, ctype: str | None = None, cache: bool = False, head: bool = False) -> None:
-        """A file, streamed (a model may be large)."""
+    def _file(self, path: Path, ctype: str | None = None, cache: bool = False, head: bool = False,
+              no_link: bool = False) -> None:
+        """A file, streamed (a model may be large); ``no_link``: refused if it is now a symbolic link."""
         try:
-            fh = open(path, "rb")
+            fh = open_no_link(path) if no_link else open(path, "rb")
         except OSError:
             self._error(HTTPStatus.NOT_FOUND, "not found")
             return
@@ -299,7 +341,7 @@ class _Handler(BaseHTTPRequestHandler):
         elif path == "/model":
             self._file(v.model.path, "model/gltf-binary", head=head)
         elif path == "/sound" and v.model.sound is not None:
-            self._file(v.model.sound, "audio/wav", head=head)
+            self._file(v.model.sound, "audio/wav", head=head, no_link=True)
         elif path.startswith("/photo/") and path[7:].isdigit() and int(path[7:]) < len(v.photos):
             photo = v.photos[int(path[7:])].path
             self._file(photo, "image/png" if photo.suffix.lower() == ".png" else "image/jpeg", head=head)
@@ -349,12 +391,81 @@ class _Handler(BaseHTTPRequestHandler):
 
 class ViewerServer(ThreadingHTTPServer):
     daemon_threads = True
+    block_on_close = False  # a stop never waits for a client's thread
     allow_reuse_address = True  # SO_REUSEADDR: a restart may take a port in TIME_WAIT; a listening port is still refused
+    request_queue_size = 128
+
+    def process_request(self, request, client_address) -> None:
+        """Serve the connection in a thread of its own. With :data:`MAX_CLIENTS` being served, the
+        connection that has waited longest for its request's head is cut to make room (a flood of
+        idle or trickling sockets cannot keep a browser out); if none is waiting, the new one is closed."""
+        if not self._slots.acquire(blocking=False):
+            self._cut_oldest_waiting()
+            if not self._slots.acquire(timeout=0.2):
+                self.shutdown_request(request)
+                return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._slots.release()
+            raise
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self.waiting(request, False)
+            self._slots.release()
+
+    def waiting(self, connection, waiting: bool) -> None:
+        """Whether ``connection`` is waiting for a request's head (since now)."""
+        import time
+
+        with self._lock:
+            if waiting:
+                self._waiting[connection] = time.monotonic()
+            else:
+                self._waiting.pop(connection, None)
+
+    def _cut_oldest_waiting(self) -> None:
+        import socket
+
+        with self._lock:
+            oldest = min(self._waiting.items(), key=lambda item: item[1], default=(None, 0))[0]
+        if oldest is not None:
+            try:
+                oldest.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+
+    def _reap(self) -> None:
+        """Every half second: cut connections whose request's head has not come within
+        :data:`REQUEST_SECONDS` in all (a client trickling a byte at a time keeps each read short)."""
+        import socket
+        import time
+
+        while not self._closing.wait(0.5):
+            now = time.monotonic()
+            with self._lock:
+                late = [c for c, since in self._waiting.items() if now - since > REQUEST_SECONDS]
+            for c in late:
+                try:
+                    c.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+
+    def server_close(self) -> None:
+        self._closing.set()
+        super().server_close()
 
     def __init__(self, viewer: Viewer, port: int = DEFAULT_PORT, option: str = "--port"):
         """``option``: how the user gives the port, named in the messages (``--port``, or
         ``--to viewer:`` for faceanim live)."""
         self.viewer = viewer
+        self._slots = threading.BoundedSemaphore(MAX_CLIENTS)
+        self._lock = threading.Lock()
+        self._waiting: dict = {}
+        self._closing = threading.Event()
         sep = "" if option.endswith(":") else " "
         try:
             super().__init__((HOST, port), _Handler)
@@ -369,6 +480,7 @@ class ViewerServer(ThreadingHTTPServer):
                                   f"with {option}{sep}P") from None
             raise ViewerError(f"cannot listen on {HOST}:{port} ({exc.strerror or exc}); give another port with "
                               f"{option}{sep}P") from None
+        threading.Thread(target=self._reap, name="faceanim-view-reaper", daemon=True).start()
 
     def handle_error(self, request, client_address) -> None:
         """A browser that goes away mid-answer is no error; anything else: one line, no traceback."""

@@ -1,0 +1,111 @@
+"""Issue 23: faults in long runs. A command stopped by Ctrl-C (SIGINT), SIGTERM or SIGHUP at any
+point of its run leaves nothing partial and no temporary file, an existing output untouched, and
+exits 128 + the signal's number with one line on stderr (scripts/sweep_signals.py runs the same
+check at ten points of each command's run, outside the suite)."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import DATA
+from test_arkit_csv import row, write_take
+
+from faceanim.standards.arkit import ARKIT_NAMES
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+OLD = b"an output the user had before"
+
+
+def take(path: Path, seconds: float = 3.0) -> Path:
+    rows = []
+    for f in range(int(seconds * 60)):
+        w = np.zeros(52)
+        w[ARKIT_NAMES.index("JawOpen")] = 0.5 + 0.5 * np.sin(f / 10)
+        rows.append(row(f"00:00:{f // 60:02d}:{f % 60:02d}.000", w))
+    return write_take(path, rows)
+
+
+def as_from_a_terminal() -> None:
+    """The child's signals at their defaults, as a command typed at a terminal has them (under nohup
+    or in a background job of a script they come ignored, and an ignored signal rightly stays so)."""
+    for s in SIGNALS:
+        signal.signal(s, signal.SIG_DFL)
+
+
+def leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if ".faceanim-" in p.name or p.name.startswith(".probe"))
+
+
+def stop(argv, out: Path, signum: int, delay: float, tmp: Path) -> tuple[int, str]:
+    """Run faceanim, send ``signum`` after ``delay`` seconds; (exit code, stderr)."""
+    private = tmp / f"tmp-{signum}-{delay:.2f}"
+    private.mkdir()
+    env = dict(os.environ, TMPDIR=str(private))
+    p = subprocess.Popen([sys.executable, "-m", "faceanim", *map(str, argv), "-o", str(out)], env=env,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=as_from_a_terminal)
+    time.sleep(delay)
+    p.send_signal(signum)
+    _, err = p.communicate(timeout=120)
+    assert list(private.iterdir()) == [], f"temporary files left in TMPDIR: {list(private.iterdir())}"
+    private.rmdir()
+    return p.returncode, err.decode(errors="replace")
+
+
+def check_stops(argv, out: Path, tmp: Path, fractions, signals=SIGNALS) -> list[int]:
+    """The command run whole once (its time T), then stopped at each fraction of T by each signal:
+    the exit code is 128 + n (or it finished first: then the output is whole), stderr one line, the
+    old output untouched, nothing left behind. Returns the exit codes."""
+    start = time.perf_counter()
+    whole = subprocess.run([sys.executable, "-m", "faceanim", *map(str, argv), "-o", str(out)],
+                           capture_output=True, timeout=300, preexec_fn=as_from_a_terminal)
+    seconds = time.perf_counter() - start
+    assert whole.returncode == 0, whole.stderr
+    reference = out.read_bytes()
+    codes = []
+    for signum in signals:
+        for fraction in fractions:
+            out.write_bytes(OLD)
+            rc, err = stop(argv, out, signum, max(0.3, fraction * seconds), tmp)
+            codes.append(rc)
+            assert "Traceback" not in err, err
+            if rc == 0:  # it finished before the signal came: the whole output
+                assert out.read_bytes() == reference
+            else:
+                assert rc == 128 + signum, (signum, fraction, rc, err)
+                assert err.strip() == f"faceanim: interrupted ({signal.Signals(signum).name})", err
+                assert out.read_bytes() == OLD, "an existing output was replaced by a stopped run"
+            assert leftovers(out.parent) == []
+    return codes
+
+
+def test_arkit_play_to_mp4_stopped_anywhere(tmp_path):
+    t = take(tmp_path / "take.csv", 4.0)
+    out = tmp_path / "out" / "x.mp4"
+    out.parent.mkdir()
+    codes = check_stops(["arkit", "play", t, "--size", "256", "--quiet"], out, tmp_path, (0.15, 0.4, 0.65, 0.85))
+    assert sum(c != 0 for c in codes) >= 9, codes  # most stops land inside the run
+
+
+@pytest.mark.skipif(not __import__("shutil").which("espeak-ng"), reason="espeak-ng is not installed")
+def test_say_to_mp4_stopped_anywhere(tmp_path):
+    out = tmp_path / "out" / "x.mp4"
+    out.parent.mkdir()
+    codes = check_stops(["say", "The quick brown fox jumps over the lazy dog.", "--size", "256", "--quiet"], out,
+                        tmp_path, (0.3, 0.75))
+    assert sum(c != 0 for c in codes) >= 5, codes
+
+
+def test_perform_to_mp4_stopped_anywhere(tmp_path):
+    video = DATA / "talking-head-videos" / "d0.mp4"
+    if not video.is_file():
+        pytest.skip("../shared/data/talking-head-videos is not here")
+    out = tmp_path / "out" / "x.mp4"
+    out.parent.mkdir()
+    codes = check_stops(["perform", video, "--size", "256", "--quiet"], out, tmp_path, (0.2, 0.6),
+                        signals=(signal.SIGINT, signal.SIGHUP))
+    assert sum(c != 0 for c in codes) >= 3, codes
