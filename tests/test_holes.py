@@ -166,3 +166,73 @@ def test_view_outlives_a_flood_of_idle_slow_and_oversized_clients_and_stops_at_o
         if p.poll() is None:
             p.kill()
             p.wait()
+
+
+# ------------------------------------------ 5: a detector fooled by a ball is caught by the one check
+@pytest.fixture
+def fooled_detector(monkeypatch):
+    """MediaPipe 'finding' a face on any render: the points it finds on the default face's."""
+    import faceanim.face.landmarks as lmod
+    from faceanim.face.default import default_face
+
+    with lmod.detection_view(default_face(), "+z", "+y", 768) as r:
+        found = lmod.detect_landmarks_in_image(r.render(), agreement=True)
+    real_detect, real_in_image = lmod.detect_landmarks, lmod.detect_landmarks_in_image
+
+    def detect(mesh, *a, **k):  # fooled on the ball only (a transfer's source scans are real faces)
+        if mesh.name != "ball":
+            return real_detect(mesh, *a, **k)
+        monkeypatch.setattr(lmod, "detect_landmarks_in_image", lambda img, agreement=False, **kw:
+                            found if agreement else found[0])
+        try:
+            return real_detect(mesh, *a, **k)
+        finally:
+            monkeypatch.setattr(lmod, "detect_landmarks_in_image", real_in_image)
+
+    monkeypatch.setattr(lmod, "detect_landmarks", detect)
+    return found
+
+
+@pytest.fixture(scope="module")
+def ball(tmp_path_factory):
+    import trimesh
+
+    path = tmp_path_factory.mktemp("ball") / "ball.obj"
+    trimesh.creation.icosphere(subdivisions=4, radius=0.1).export(path)
+    return path
+
+
+def _commands(ball, d):
+    fw = __import__("conftest").DATA / "facewarehouse-tester1"
+    video = __import__("conftest").DATA / "talking-head-videos" / "d0.mp4"
+    fap = d / "one.fap"
+    fap.write_text("2.1 one 25 1\n" + " ".join(["0"] * 68) + "\n0\n")
+    take = write_take(d / "take.csv", _rows())
+    return {
+        "landmarks": ["landmarks", ball, "-o", d / "x.json"],
+        "transfer": ["transfer", "--source-neutral", fw / "pose_0.obj", "--source-expressive", fw / "pose_1.obj",
+                     "--target", ball, "-o", d / "x.obj"],
+        "preprocess": ["preprocess", ball, "-o", d / "x.obj"],
+        "wires extract": ["wires", "extract", "--face", ball, "--template", "default", "-o", d / "x.json"],
+        "fap play": ["fap", "play", fap, "--face", ball, "-o", d / "x.glb"],
+        "arkit play": ["arkit", "play", take, "--face", ball, "-o", d / "x.glb"],
+        "perform": ["perform", video, "--face", ball, "-o", d / "x.glb"],
+        "rig": ["rig", ball, "-o", d / "x.glb"],
+        "say": ["say", "hi", "--face", ball, "-o", d / "x.glb"],
+        "au": ["au", "--face", ball, "--au", "12", "-o", d / "x.png"],
+    }
+
+
+@pytest.mark.parametrize("command", ["landmarks", "transfer", "preprocess", "wires extract", "fap play", "arkit play",
+                                     "perform", "rig", "say", "au"])
+def test_every_command_that_takes_a_face_refuses_a_ball(command, ball, fooled_detector, tmp_path, capsys):
+    argv = _commands(ball, tmp_path)[command]
+    if any(isinstance(a, __import__("pathlib").Path) and not a.exists() and a.suffix in (".obj", ".mp4")
+           and a.parent != tmp_path for a in argv):
+        pytest.skip("the shared data is not here")
+    if command == "say" and not __import__("shutil").which("espeak-ng"):
+        pytest.skip("espeak-ng is not installed")
+    rc, out, err = run(argv, capsys)
+    assert rc == 2, (out, err)
+    assert "no face found in 'ball': its landmarks have no nose" in err and len(err.strip().splitlines()) == 1
+    assert not any(p.name.startswith("x.") for p in tmp_path.iterdir())

@@ -33,6 +33,10 @@ def _cmd_landmarks(args) -> None:
     else:
         lms, image = detect_landmarks(mesh, scheme=args.scheme, forward=args.forward, up=args.up,
                                       return_image=True)
+        from faceanim.face.face import Face, landmarks_478
+        from faceanim.face.registration import check_face
+
+        check_face(Face(mesh, landmarks_478(mesh, lms)))  # the one check every command's face passes
     with outputs_together() as written:
         written.append(lms.save(args.output))
         if args.image:

@@ -68,6 +68,12 @@ MAX_IDENTITY_RMS = 3.0
 # Measured: the generic head 0.76, the default face 0.74, FaceWarehouse 0.60-0.65, VRoid's anime
 # face 0.33; the generic head's landmarks squashed to a fifth of their depth 0.15, a plane's 0
 MIN_FACE_DEPTH = 0.2
+# and a nose: its tip in front of the cheeks (MediaPipe 205, 425), in inter-ocular distances.
+# Measured: the default face 0.41, ICT's head 0.36, FaceWarehouse 0.24-0.29, VRoid's anime face
+# 0.21; a face's pattern of landmarks cast onto a sphere or a capsule (a detector fooled by a
+# shaded ball) 0.05, whose depth to the outline passes MIN_FACE_DEPTH
+MIN_NOSE_RELIEF = 0.12
+CHEEKS = (205, 425)
 
 
 @dataclass(eq=False)
@@ -303,7 +309,8 @@ def fit_landmarks(landmarks: np.ndarray, head: GenericHead | None = None):
 
 
 def check_face(face, head: GenericHead | None = None) -> None:
-    """Refuse landmarks that do not look like a face's: flat (:data:`MIN_FACE_DEPTH`), or after
+    """Refuse landmarks that do not look like a face's: flat (:data:`MIN_FACE_DEPTH`), without a
+    nose (:data:`MIN_NOSE_RELIEF`: a face's pattern on a ball), or after
     stage 1 the residual or the identity weights outside the bounds measured on real faces
     (:data:`MAX_LANDMARK_ERROR`, :data:`MAX_IDENTITY_RMS`). Raises :class:`LandmarkError` ("no
     face found in ...")."""
@@ -320,6 +327,11 @@ def check_face(face, head: GenericHead | None = None) -> None:
         raise LandmarkError(f"no face found in '{name}': its landmarks are flat (the nose {depth:.2f} inter-ocular "
                             f"distances in front of the face's outline; faces have at least {MIN_FACE_DEPTH}); "
                             "if it is a face, give its landmarks with --landmarks")
+    relief = float(local[NOSE_TIP, 2] - local[list(CHEEKS), 2].mean()) / face.frame.iod
+    if relief < MIN_NOSE_RELIEF:
+        raise LandmarkError(f"no face found in '{name}': its landmarks have no nose (the tip {relief:.2f} inter-ocular "
+                            f"distances in front of the cheeks; faces have at least {MIN_NOSE_RELIEF}); if it is a "
+                            "face, give its landmarks with --landmarks")
     _, _, _, x, res = face.landmark_fit
     err = res / face_frame(head.landmarks()).iod
     spread = float(np.sqrt(np.mean(x[:head.n_identity] ** 2)))
