@@ -236,3 +236,71 @@ def test_every_command_that_takes_a_face_refuses_a_ball(command, ball, fooled_de
     assert rc == 2, (out, err)
     assert "no face found in 'ball': its landmarks have no nose" in err and len(err.strip().splitlines()) == 1
     assert not any(p.name.startswith("x.") for p in tmp_path.iterdir())
+
+
+# --------------------------------------------- 8, 11: a batch on a cluster stops and fails in one line
+def _render_job(folder, n: int, bad: bool = False):
+    import trimesh
+
+    for k in range(n):
+        trimesh.creation.box(extents=(1, 1 + k / n, 1)).export(folder / f"m{k:03d}.obj")
+    if bad:
+        (folder / "m999.obj").write_bytes(b"")
+    job = folder / "job.yaml"
+    job.write_text("operation: render\ninputs:\n  face: 'm*.obj'\noptions: {size: 128}\noutput: '{face}.png'\n")
+    return job
+
+
+def _batch(job, out, *extra):
+    import subprocess
+    import sys
+
+    return subprocess.Popen([sys.executable, "-m", "faceanim", "batch", str(job), "-o", str(out), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: __import__("signal").signal(__import__("signal").SIGINT,
+                                                                            __import__("signal").SIG_DFL))
+
+
+def test_a_failing_task_on_a_cluster_is_its_one_line_and_nothing_else(tmp_path):
+    job = _render_job(tmp_path, 3, bad=True)
+    p = _batch(job, tmp_path / "out", "--workers", "2", "--quiet")
+    out, err = p.communicate(timeout=300)
+    assert p.returncode == 1, err
+    assert err.splitlines() == ["failed: m999.png: mesh '" + str(tmp_path / "m999.obj") + "' is empty (no vertices "
+                                "or no faces); give a surface mesh"], err
+    assert "3 done, 0 skipped (done before), 1 failed" in out
+
+
+def test_ctrl_c_on_a_cluster_batch_is_one_line_and_keeps_what_is_done(tmp_path):
+    import signal
+    import sqlite3
+    import time
+
+    job = _render_job(tmp_path, 60)
+    p = _batch(job, tmp_path / "out", "--workers", "2", "--quiet")
+    first = p.stdout.readline()
+    assert "on a local cluster of 2 worker processes" in first, first
+    manifest = tmp_path / "out" / "faceanim-batch.sqlite"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:  # stop once some tasks are done
+        time.sleep(0.2)
+        if len(list((tmp_path / "out").glob("*.png"))) >= 2:
+            break
+    __import__("os").killpg(p.pid, signal.SIGINT)  # a terminal's Ctrl-C: the whole process group
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert err.strip() == "faceanim: interrupted (SIGINT)", err
+    db = sqlite3.connect(manifest)
+    done = {r[0] for r in db.execute("SELECT output FROM tasks WHERE state = 'done'")}
+    db.close()
+    assert done and done <= {f.name for f in (tmp_path / "out").glob("*.png")}
+
+
+def test_planning_a_big_batch_says_how_far_it_is(tmp_path):
+    from faceanim.batch.jobs import read_job
+    from faceanim.cli.batch import plan
+
+    job = _render_job(tmp_path, 250)
+    seen = []
+    tasks = plan(read_job(job), (tmp_path / "out").resolve(), lambda done, total: seen.append((done, total)))
+    assert len(tasks) == 250 and seen == [(0, 250), (100, 250), (200, 250)]

@@ -20,6 +20,7 @@ import logging
 import os
 import time
 from collections.abc import Callable
+from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -85,9 +86,44 @@ def _client(scheduler: str | None, workers: int | None):
     except ImportError:
         dashboard = None
     n = workers or max(1, min(os.cpu_count() or 1, 8))
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard,
-                           silence_logs=logging.ERROR)
+    # the worker processes start with Ctrl-C ignored: a terminal sends it to the whole process group,
+    # and this process stops the batch (and its workers) itself; each worker would print a traceback
+    with _sigint_ignored():
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard,
+                               silence_logs=logging.CRITICAL)
     return Client(cluster, set_as_default=False)
+
+
+@contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while the block starts processes (they inherit it), then as it was (a Ctrl-C
+    in those few seconds is ignored too; the next one stops the batch)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextmanager
+def _dask_quiet():
+    """Dask's, Tornado's and asyncio's loggers silent in this process while the cluster runs and
+    closes (a worker's connection closing as the cluster stops is logged with a traceback)."""
+    names = ("distributed", "tornado", "asyncio", "bokeh")
+    levels = {n: logging.getLogger(n).level for n in names}
+    for n in names:
+        logging.getLogger(n).setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for n, level in levels.items():
+            logging.getLogger(n).setLevel(level)
 
 
 IN_FLIGHT_PER_WORKER = 4  # tasks handed to the scheduler at once, per worker (a dataset may have 10^5)...
@@ -147,7 +183,9 @@ def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, sc
         if progress is not None:
             progress(finished[0])
 
+    quiet = ExitStack()
     try:
+        quiet.enter_context(_dask_quiet())
         if on_cluster_now:
             client = _client(scheduler, workers)
         out_dir.mkdir(exist_ok=True)
@@ -168,9 +206,12 @@ def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, sc
     finally:
         if client is not None:
             cluster = client.cluster
-            client.close()
+            with suppress(Exception):  # a connection closing as the cluster stops is no failure of the batch
+                client.close()
             if cluster is not None and not scheduler:
-                cluster.close()
+                with suppress(Exception):
+                    cluster.close()
+        quiet.close()
         if manifest is not None:
             manifest.close()
         if lock is not None:

@@ -115,9 +115,11 @@ def _where_refused(job, known: dict, message: str) -> str:
     return job.source
 
 
-def plan(job, out_dir: Path):
+def plan(job, out_dir: Path, progress=None):
     """The job's tasks as :class:`~faceanim.batch.runner.PlannedTask` (checked: operation,
-    input and option names, and each task's command line as the command itself parses it)."""
+    input and option names, and each task's command line as the command itself parses it).
+    ``progress(done, total)`` is called as tasks are planned (a big job takes a while: every
+    command line is parsed and every input file hashed)."""
     from faceanim.batch.jobs import expand
     from faceanim.batch.manifest import file_hash, signature
     from faceanim.batch.runner import PlannedTask
@@ -165,7 +167,9 @@ def plan(job, out_dir: Path):
     parser = _parser()
     planned = []
     version = faceanim_version()
-    for t in tasks:
+    for k, t in enumerate(tasks):
+        if progress is not None and k % 100 == 0:
+            progress(k, len(tasks))
         out = out_dir / t.output
         if str(out.resolve()) in read:
             raise CommandError(f"output ({job.where('output')}) '{shown(t.output, 80)}' would overwrite an input of "
@@ -267,10 +271,21 @@ def _cmd_batch(args) -> None:
     if not out_dir.parent.is_dir():
         raise CommandError(f"the output folder's parent '{shown(out_dir.parent, 80, tail=True)}' does not exist; "
                            "create it first")
-    tasks = plan(job, out_dir.resolve())
+    from tqdm import tqdm
+
+    planning = tqdm(desc="planning (each task's command checked, its inputs hashed)", unit="task",
+                    disable=args.quiet or not sys.stderr.isatty(), leave=False)
+
+    def planned(done: int, total: int) -> None:
+        planning.total = total
+        planning.update(done - planning.n)
+
+    try:
+        tasks = plan(job, out_dir.resolve(), planned)
+    finally:
+        planning.close()
     # writable, checked before any work; the folder and its manifest are made once the cluster is up
     check_output_path(out_dir / "faceanim-batch.sqlite" if out_dir.is_dir() else out_dir)
-    from tqdm import tqdm
 
     bar = tqdm(total=len(tasks), desc="tasks", unit="task", disable=args.quiet or not sys.stderr.isatty(),
                leave=False)
