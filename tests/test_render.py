@@ -446,3 +446,19 @@ def test_pipelined_frames_are_the_frames_rendered_one_by_one(face):
         assert len({a.tobytes() for a in piped}) == len(poses)  # the poses differ on screen
         assert np.array_equal(r.render(), one_by_one[-1])
         assert list(r.render_frames(iter([]))) == []
+
+
+def test_back_faces_are_culled_only_where_none_shows():
+    """cull_unseen_backs: a closed sphere shows no back face (culled, the same picture); the same
+    sphere turned inside out shows only back faces, dark (kept: the picture must not change)."""
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=3)
+    ball = Mesh(np.asarray(s.vertices), np.asarray(s.faces))
+    inside_out = Mesh(np.asarray(s.vertices), np.asarray(s.faces)[:, ::-1])
+    for mesh, culled in ((ball, True), (inside_out, False)):
+        with OffscreenRenderer(mesh, size=(96, 96), yaw=20, pitch=10) as r:
+            before = r.render()
+            assert r.cull_unseen_backs() is culled and r.cull_backs is culled
+            assert np.array_equal(r.render(), before)
+            assert np.array_equal(list(r.render_frames(iter([mesh.vertices])))[0], before)

@@ -97,6 +97,7 @@ def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = DEFAULT_FPS, si
         for name in rig.controls:
             written.append(save_png(out / f"{name}.png", renderer.render(rig.pose({name: 1.0}))))
         step("demo.mp4")
+        renderer.cull_unseen_backs(face.mesh.vertices)
         frames = renderer.render_frames(frames_of(rig, curves))  # a few frames at a time, pipelined
         with tqdm(total=len(curves), desc="rendering demo.mp4", unit="frame", disable=not show) as bar:
             written.append(write_video(out / "demo.mp4", frames, fps=fps, progress=bar))

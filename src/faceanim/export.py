@@ -294,6 +294,7 @@ def write_mp4(path: Path, a: Animation, progress=None) -> list[Path]:
     check_video(a.n_frames, size, size)
     view = a.view if a.view is not None else face.view(yaw=0.0, pitch=0.0)
     with OffscreenRenderer(face.mesh, size=(size, size), **view) as r:
+        r.cull_unseen_backs()  # back faces none of the rest pose shows are not drawn
         faces = r.render_frames(face_frames(a))
         if a.video is None:
             return [write_video(path, faces, fps=a.fps, audio=a.sound, progress=progress)]

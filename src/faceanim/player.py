@@ -41,6 +41,7 @@ def render_curves(rig: Rig, curves: np.ndarray, path, fps: float, view: dict | N
     little); without it the whole mesh, straight on."""
     check_video(len(curves), size, size)
     with OffscreenRenderer(rig.mesh, size=(size, size), **(view or {})) as r:
+        r.cull_unseen_backs()
         frames = r.render_frames(frames_of(rig, curves))
         return write_video(path, frames, fps=fps, audio=audio, progress=progress)
 
