@@ -42,13 +42,16 @@ def _name(path) -> str:
     return shown(path, PATH_SHOWN, tail=True)
 
 
-def _reader(path: Path):
+def _reader(path: Path, fps: float | None = None):
+    """imageio-ffmpeg's frame reader and the video's metadata; with ``fps``, frames at that constant
+    rate (a variable-frame-rate clip, as phones record, is resampled: frame k is at k / fps)."""
     import imageio_ffmpeg
 
     from faceanim.io.files import native_stderr_quiet
 
     with native_stderr_quiet():
-        gen = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24")
+        gen = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24",
+                                         output_params=["-fps_mode", "cfr", "-r", f"{fps:.6f}"] if fps else None)
         try:
             meta = next(gen)
         except (RuntimeError, OSError, StopIteration, ValueError):
@@ -90,7 +93,7 @@ def video_frames(info: VideoInfo) -> Iterator[np.ndarray]:
     ``MAX_FRAMES``. A file that ends well before the frames its container announces (truncated or
     damaged: fewer than all but 2% of them, or 2) raises :class:`InputFileError` once its last
     readable frame has been given (containers' durations are estimates: a frame short is normal)."""
-    gen, _ = _reader(info.path)
+    gen, _ = _reader(info.path, info.fps)
     w, h = info.size
     n = 0
     try:
