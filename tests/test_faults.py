@@ -109,3 +109,56 @@ def test_perform_to_mp4_stopped_anywhere(tmp_path):
     codes = check_stops(["perform", video, "--size", "256", "--quiet"], out, tmp_path, (0.2, 0.6),
                         signals=(signal.SIGINT, signal.SIGHUP))
     assert sum(c != 0 for c in codes) >= 3, codes
+
+
+# --------------------------------------------------------------------------------- batch faults
+def _boxes_job(folder: Path, n: int, out_folder: Path | None = None, size: int = 256) -> Path:
+    import trimesh
+
+    meshes = folder / "meshes"
+    meshes.mkdir(exist_ok=True)
+    for k in range(n):
+        trimesh.creation.box(extents=(1, 1 + k / n, 1)).export(meshes / f"m{k:02d}.obj")
+    job = (out_folder or folder) / "job.yaml"
+    job.write_text(f"operation: render\ninputs:\n  face: '{meshes}/m*.obj'\noptions: {{size: {size}}}\n"
+                   "output: '{face}.png'\n")
+    return job
+
+
+def _faceanim(*argv, timeout=300):
+    return subprocess.run([sys.executable, "-m", "faceanim", *map(str, argv)], capture_output=True, text=True,
+                          timeout=timeout, preexec_fn=as_from_a_terminal)
+
+
+def test_a_batch_whose_disk_fills_stops_in_one_line_and_keeps_what_is_done(tmp_path):
+    small = tmp_path / "small"
+    small.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=96k", "tmpfs", str(small)], capture_output=True).returncode:
+        pytest.skip("cannot mount a small tmpfs here (needs root)")
+    try:
+        job = _boxes_job(tmp_path, 40)
+        r = _faceanim("batch", job, "-o", small / "out", "--workers", "1", "--quiet")
+        assert r.returncode in (1, 2), r.stderr
+        assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
+        last = r.stderr.strip().splitlines()[-1]
+        assert "is full; free some space and run the batch again" in last or "No space left" in r.stderr, r.stderr
+        assert leftovers(small / "out") == []
+        done = sorted(p.name for p in (small / "out").glob("*.png"))
+        assert done and all((small / "out" / n).stat().st_size > 100 for n in done)  # whole PNGs only
+    finally:
+        subprocess.run(["umount", str(small)], capture_output=True)
+
+
+def test_a_truncated_manifest_is_refused_and_left_as_it_is(tmp_path):
+    job = _boxes_job(tmp_path, 3, size=64)
+    out = tmp_path / "out"
+    assert _faceanim("batch", job, "-o", out, "--quiet").returncode == 0
+    manifest = out / "faceanim-batch.sqlite"
+    for keep in (manifest.stat().st_size // 2, 100):  # cut mid-write, or to less than its header
+        with open(manifest, "r+b") as fh:
+            fh.truncate(keep)
+        damaged = manifest.read_bytes()
+        r = _faceanim("batch", job, "-o", out, "--quiet")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert "is not a faceanim batch manifest (damaged or another file); move it away" in r.stderr
+        assert manifest.read_bytes() == damaged  # a file faceanim cannot read is never overwritten

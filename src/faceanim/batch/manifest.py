@@ -53,9 +53,21 @@ class Manifest:
             self.db.execute("CREATE TABLE IF NOT EXISTS tasks (output TEXT PRIMARY KEY, signature TEXT, "
                             "outputs TEXT, state TEXT, error TEXT, seconds REAL, finished REAL)")
             self.db.commit()
-        except sqlite3.DatabaseError:
+        except sqlite3.DatabaseError as exc:
+            self._unwritable(exc)
             raise FaceAnimError(f"'{shown(self.path, 80, tail=True)}' is not a faceanim batch manifest (damaged or "
                                 "another file); move it away or choose another output folder") from None
+
+    def _unwritable(self, exc: Exception) -> None:
+        """A full disk or a failing one, said as such (SQLite's OperationalError)."""
+        text = str(exc).lower()
+        where = shown(self.path.parent, 80, tail=True)
+        if "full" in text:
+            raise FaceAnimError(f"the disk holding '{where}' is full; free some space and run the batch again "
+                                "(the tasks done are kept)") from None
+        if isinstance(exc, sqlite3.OperationalError) and ("i/o" in text or "readonly" in text or "locked" in text):
+            raise FaceAnimError(f"the batch manifest in '{where}' cannot be written ({text[:60]}); check the "
+                                "folder and run the batch again (the tasks done are kept)") from None
 
     @classmethod
     def existing(cls, folder) -> Manifest | None:
@@ -76,7 +88,13 @@ class Manifest:
         return bool(files) and all((Path(folder) / f).is_file() for f in files)
 
     def record(self, output: str, sig: str, state: str, outputs=(), error: str = "", seconds: float = 0.0) -> None:
-        self.db.execute("INSERT OR REPLACE INTO tasks VALUES (?, ?, ?, ?, ?, ?, ?)",
-                        (output, sig, json.dumps(list(outputs)), state, error, float(seconds), time.time()))
-        self.db.commit()
+        try:
+            self.db.execute("INSERT OR REPLACE INTO tasks VALUES (?, ?, ?, ?, ?, ?, ?)",
+                            (output, sig, json.dumps(list(outputs)), state, error, float(seconds), time.time()))
+            self.db.commit()
+        except sqlite3.DatabaseError as exc:
+            self._unwritable(exc)
+            raise FaceAnimError(f"the batch manifest in '{shown(self.path.parent, 80, tail=True)}' cannot be "
+                                "written (damaged while the batch ran?); move it away and run the batch again") \
+                from None
 
