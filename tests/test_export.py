@@ -155,3 +155,31 @@ def test_live_file_sink_writes_the_run_through_the_registry(tmp_path):
         (tmp_path / "run.glb").read_bytes()[12:16], "little")])
     assert doc["animations"][0]["name"] == "live" and "JawOpen".lower() in {
         n.lower() for n in doc["meshes"][0]["extras"]["targetNames"]}
+
+
+def test_an_mp4_of_a_fap_stream_turns_the_head_once_and_fits_nothing(monkeypatch):
+    """The FAP rig turns the head itself: the frames an MP4 shows are the rig's own evaluation (no
+    second turn by fitted head angles), and no ARKit fit is made for them."""
+    import faceanim.player as player
+    from faceanim.export import face_frames
+    from faceanim.face.face import Face
+    from faceanim.face.faps import FapStream, fap
+    from faceanim.rig.mpeg4 import FapRig
+
+    face = Face.load("default")
+    rig = FapRig.build(face)
+    values = np.zeros((6, 68))
+    mask = np.zeros((6, 68), dtype=bool)
+    for name, peak in (("head_yaw", 20000.0), ("open_jaw", 300.0)):
+        k = fap(name).number - 1
+        values[:, k] = np.linspace(0, peak, 6)
+        mask[:, k] = True
+    stream = FapStream(values, mask, 25.0, name="turn")
+    monkeypatch.setattr(player, "arkit_from_stream", lambda *a: (_ for _ in ()).throw(AssertionError("fitted")))
+    a = player.stream_animation(face, rig, stream)
+    frames = np.array(list(face_frames(a)))
+    expected = rig.evaluate(rig.stream_curves(stream))
+    np.testing.assert_allclose(frames, expected, atol=1e-12)
+    assert np.abs(frames[-1] - face.mesh.vertices).max() > 0.05 * face.frame.iod  # it did turn
+    b = player.stream_animation(face, rig, stream, faps_as_targets=True)
+    assert b.head is None and "head_yaw" in b.targets

@@ -41,7 +41,8 @@ class Animation:
     - ``shapes``: the face's ARKit shapes by Apple's names if already made
       (:func:`~faceanim.rig.arkit.arkit_shapes` otherwise);
     - ``rig`` and ``curves``: a :class:`~faceanim.rig.rig.Rig` and its (F, C) curves, which an MP4
-      renders exactly (rigid jaw and eyes) instead of the morph targets;
+      renders exactly (rigid jaw and eyes) instead of the morph targets; ``rig_turns_head``: the
+      rig's curves turn the head themselves (a FAP rig), so an MP4 does not turn it by ``head`` again;
     - ``fap``: the :class:`~faceanim.face.faps.FapStream` a ``.fap`` file holds;
     - ``cues``: Rhubarb mouth cues (start seconds, shape) when known better than from the curves
       (from timed phones);
@@ -64,6 +65,7 @@ class Animation:
     shapes: dict | Callable | None = None
     rig: object = None
     curves: np.ndarray | None = None
+    rig_turns_head: bool = False
     fap: object = None
     cues: list | None = None
     sound: Path | None = None
@@ -272,7 +274,7 @@ def face_frames(a: Animation, chunk: int = 64):
         rig = Rig.from_blendshapes(face.mesh, arkit_shapes_of(a))
         column = {apple_name(n): k for k, n in enumerate(ARKIT_NAMES)}
         curves = _arkit(a)[:, [column[c] for c in rig.controls]]
-    head = _head(a)
+    head = None if a.rig is not None and a.rig_turns_head else _head(a)
     rot = None if head is None else head_rotations(head, face.frame.rotation)
     pivot = head_pivot(face) if rot is not None else None
     for s in range(0, len(curves), chunk):

@@ -82,10 +82,11 @@ def stream_animation(face: Face, rig: FapRig, stream: FapStream, faps_as_targets
 
     fitted = cache(lambda: arkit_from_stream(face, rig, stream))
     a = Animation(stream.fps, arkit=lambda: fitted()[0], head=lambda: fitted()[1], face=face, rig=rig,
-                  curves=rig.stream_curves(stream), fap=stream, name=stream.name or "faps", view=face.view(),
-                  **fields)
-    if faps_as_targets:
+                  curves=rig.stream_curves(stream), rig_turns_head=True, fap=stream, name=stream.name or "faps",
+                  view=face.view(), **fields)
+    if faps_as_targets:  # the head's FAPs are targets too (linearised): no rotation node besides
         a.targets, a.weights = fap_targets(rig, stream)
+        a.head = None
     return a
 
 
