@@ -52,7 +52,7 @@ from _timing import (
 from faceanim.drivers.speech import align, say_timed
 from faceanim.drivers.speech.visemes import speech_stream
 from faceanim.face.face import Face
-from faceanim.face.faps import fap
+from faceanim.standards.mpeg4 import fap
 from faceanim.rig.mpeg4 import FapRig
 
 TEXT = "Hello, how are you? I am a talking face built from the papers."

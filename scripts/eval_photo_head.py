@@ -37,7 +37,7 @@ from faceanim.build.photo import (
     reconstruct,
 )
 from faceanim.face.face import Face, landmarks_478
-from faceanim.face.fdp import fdp_spec
+from faceanim.standards.mpeg4 import fdp_spec
 from faceanim.face.frame import similarity
 from faceanim.face.generic_head import generic_head
 from faceanim.face.landmarks import detect_landmarks

@@ -139,7 +139,8 @@ def test_a_fap_stream_as_arkit_curves_follows_the_jaw():
     """A FAP stream that opens the jaw, stretches a lip corner and closes a lid, fitted with the
     face's ARKit shapes: jawOpen follows open_jaw (r > 0.95), the stretch lands on the subject's
     left mouth corner, the blink on the left eye, and the fit leaves under half of the motion."""
-    from faceanim.face.faps import N_FAPS, FapStream, faps
+    from faceanim.face.faps import FapStream
+    from faceanim.standards.mpeg4 import N_FAPS, faps
     from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.player import arkit_from_stream
     from faceanim.rig.mpeg4 import FapRig

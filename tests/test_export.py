@@ -98,7 +98,8 @@ def test_glb_carries_the_faces_arkit_shapes_curves_and_head(tmp_path):
 def test_a_costly_field_is_made_only_for_a_format_that_needs_it(tmp_path, monkeypatch):
     import faceanim.player as player
     from faceanim.face.face import Face
-    from faceanim.face.faps import FapStream, fap
+    from faceanim.face.faps import FapStream
+    from faceanim.standards.mpeg4 import fap
     from faceanim.rig.mpeg4 import FapRig
 
     face = Face.load("default")
@@ -163,7 +164,8 @@ def test_an_mp4_of_a_fap_stream_turns_the_head_once_and_fits_nothing(monkeypatch
     import faceanim.player as player
     from faceanim.export import face_frames
     from faceanim.face.face import Face
-    from faceanim.face.faps import FapStream, fap
+    from faceanim.face.faps import FapStream
+    from faceanim.standards.mpeg4 import fap
     from faceanim.rig.mpeg4 import FapRig
 
     face = Face.load("default")

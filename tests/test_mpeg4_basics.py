@@ -6,7 +6,7 @@ import pytest
 from faceanim.drivers.mpeg4 import FapStream
 from faceanim.errors import InputFileError, LandmarkError
 from faceanim.face.face import Face, landmarks_478
-from faceanim.face.faps import FapError, direction_vector, fap, faps
+from faceanim.standards.mpeg4 import FapError, direction_vector, fap, faps
 from faceanim.face.fdp import feature_points
 from faceanim.face.frame import face_frame
 from faceanim.io.fapfile import parse_fap, read_fap, write_fap
@@ -224,7 +224,7 @@ def test_glb_linearisation_of_the_jaw_and_head_is_their_exact_derivative(fap_rig
     the true (rotating) motion at the neutral pose, against central finite differences."""
     for name, h in (("open_jaw", 1e-3), ("thrust_jaw", 1e-3), ("shift_jaw", 1e-3), ("head_pitch", 1e-2),
                     ("head_yaw", 1e-2), ("head_roll", 1e-2), ("raise_b_midlip", 1e-3)):
-        from faceanim.face.faps import fap
+        from faceanim.standards.mpeg4 import fap
 
         one_sided = fap(name).bidirectional is False  # cannot go negative (open_jaw, thrust_jaw)
         fd = fap_rig.pose({name: h}) - fap_rig.pose({name: 0.0 if one_sided else -h})

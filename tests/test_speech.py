@@ -12,7 +12,7 @@ from faceanim.cli import main
 from faceanim.drivers.mpeg4 import Action, blend_actions, expression_faps, fap_set
 from faceanim.drivers.speech import Phone, phone_viseme, viseme_actions
 from faceanim.drivers.speech.phonemes import SpeechError, check_text, words_of
-from faceanim.face.faps import FapError
+from faceanim.standards.mpeg4 import FapError
 
 SPEECH = DATA / "speech-librivox"
 has_espeak = pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="espeak-ng is not installed (scripts/setup.sh installs it)")

@@ -106,7 +106,7 @@ def _fap_scales() -> dict[int, float]:
 def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
     """Every control of ``sets`` on ``face`` as named shapes (module docstring). ``progress``:
     an optional callable taking the name of each set as it starts."""
-    from faceanim.face.faps import faps
+    from faceanim.standards.mpeg4 import faps
     from faceanim.rig.arkit import arkit_shapes
     from faceanim.rig.mpeg4 import FapRig
     from faceanim.rig.transfer import ExpressionTransfer, default_model

@@ -16,7 +16,8 @@ import numpy as np
 from faceanim.deform.wires import Curve
 from faceanim.errors import FaceAnimError
 from faceanim.face.face import Face
-from faceanim.face.faps import FapStream, faps
+from faceanim.face.faps import FapStream
+from faceanim.standards.mpeg4 import faps
 from faceanim.face.mesh import Mesh
 from faceanim.io.gltf import write_gltf
 from faceanim.limits import check_video

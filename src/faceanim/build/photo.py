@@ -194,7 +194,7 @@ def apply_corrections(views: list[PhotoView], spec: object, source: str = "point
     MPEG-4 FDP ("9.3", the nose tip), by MediaPipe landmark ("mp:4") or as ``head_top`` /
     ``head_back``; values are pixels (x right, y down).
     """
-    from faceanim.face.fdp import fdp_spec
+    from faceanim.standards.mpeg4 import fdp_spec
 
     fdps = fdp_spec()["points"]
     if not isinstance(spec, dict):
@@ -472,7 +472,7 @@ INNER_LIP_FDPS = ("2.2", "2.3", "2.4", "2.5", "2.6", "2.7", "2.8", "2.9", "3.5",
 def control_landmarks() -> np.ndarray:
     """The landmarks that steer the generic head: the MPEG-4 feature points (FDPs) a photo shows,
     the face outline and the nose ridge, sorted."""
-    from faceanim.face.fdp import fdp_spec
+    from faceanim.standards.mpeg4 import fdp_spec
     from faceanim.face.landmarks import FACE_OVAL
 
     fdps = fdp_spec()["points"]

@@ -74,7 +74,7 @@ from faceanim.drivers.mpeg4 import (
 )
 from faceanim.errors import InputFileError
 from faceanim.errors import shown as _shown
-from faceanim.face.faps import FapError
+from faceanim.standards.mpeg4 import FapError
 from faceanim.limits import (
     MAX_ACTIONS,
     MAX_DURATION,

@@ -23,7 +23,8 @@ from importlib import resources
 
 import numpy as np
 
-from faceanim.face.faps import N_FAPS, FapError, FapStream, fap
+from faceanim.face.faps import FapStream
+from faceanim.standards.mpeg4 import N_FAPS, FapError, fap
 
 ENVELOPES = ("linear", "smooth", "peak")
 

@@ -12,24 +12,17 @@ MW0 = 8.3.x - 8.4.x; a FAP value of 1 is FAPU0 / 1024 (translations) or 1e-5 rad
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
-from functools import lru_cache
-from importlib import resources
 
 import numpy as np
 
 from faceanim.errors import LandmarkError
-from faceanim.face.faps import ANGLE_UNIT
+from faceanim.standards.mpeg4 import ANGLE_UNIT
 from faceanim.face.frame import FaceFrame, face_frame
 from faceanim.face.landmarks import CHEEK_EXTREMES
 from faceanim.face.mesh import Mesh
 from faceanim.face.regions import skin
-
-
-@lru_cache(maxsize=1)
-def fdp_spec() -> dict:
-    return json.loads(resources.files("faceanim").joinpath("data", "fdp.json").read_text())
+from faceanim.standards.mpeg4 import fdp_spec
 
 
 @dataclass

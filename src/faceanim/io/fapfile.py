@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from faceanim.errors import FaceAnimError, InputFileError
-from faceanim.face.faps import N_FAPS, FapStream
+from faceanim.face.faps import FapStream
+from faceanim.standards.mpeg4 import N_FAPS
 from faceanim.io.files import atomic_output
 from faceanim.limits import MAX_DURATION, MAX_FPS, MAX_FRAMES
 

@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from faceanim.face.face import Face
-from faceanim.face.faps import ANGLE_UNIT, N_FAPS, FapError, direction_vector, fap, faps
+from faceanim.standards.mpeg4 import ANGLE_UNIT, N_FAPS, FapError, direction_vector, fap, faps
 from faceanim.face.fdp import FeaturePoints
 from faceanim.face.landmarks import CHEEK_EXTREMES, MOUTH_CORNERS
 from faceanim.face.mesh import Mesh

@@ -46,7 +46,7 @@ def arkit_names() -> frozenset[str]:
 
 @lru_cache(maxsize=1)
 def fap_names() -> frozenset[str]:
-    from faceanim.face.faps import faps
+    from faceanim.standards.mpeg4 import faps
 
     return frozenset(f.name for f in faps())
 

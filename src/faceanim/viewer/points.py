@@ -32,7 +32,7 @@ def point_names() -> dict:
     """The names the page offers: ``landmarks`` (name -> MediaPipe index: the named ones of the
     478 scheme), ``fdp`` (the MPEG-4 feature points a photo can correct), ``photo_extra``."""
     from faceanim.build.photo import EXTRA_POINTS
-    from faceanim.face.fdp import fdp_spec
+    from faceanim.standards.mpeg4 import fdp_spec
     from faceanim.face.landmarks import MEDIAPIPE_NAMES
 
     named = {n: i for i, n in MEDIAPIPE_NAMES.items() if not re.fullmatch(r"mp\d+", n)}

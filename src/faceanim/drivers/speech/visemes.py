@@ -13,7 +13,8 @@ import numpy as np
 from faceanim.drivers.mpeg4 import Action, blend_actions, fap_set, viseme_table
 from faceanim.drivers.speech.phonemes import Phone
 from faceanim.errors import FaceAnimError
-from faceanim.face.faps import FapError, FapStream, fap
+from faceanim.face.faps import FapStream
+from faceanim.standards.mpeg4 import FapError, fap
 from faceanim.limits import check_frames
 
 # a p/b/m closes a face whose neutral lips are parted: the mid-lips each move half the gap (in
