@@ -304,3 +304,77 @@ def test_planning_a_big_batch_says_how_far_it_is(tmp_path):
     seen = []
     tasks = plan(read_job(job), (tmp_path / "out").resolve(), lambda done, total: seen.append((done, total)))
     assert len(tasks) == 250 and seen == [(0, 250), (100, 250), (200, 250)]
+
+
+# ------------------------------------------------------ the outside sweep of this session's change
+def test_landmark_detection_prints_nothing_on_stderr(tmp_path):
+    """MediaPipe's native threads log (TensorFlow Lite's delegate, absl) whenever they please: the
+    detector's whole life runs with those logs off, so a command's stderr is its one line or nothing."""
+    import os
+    import subprocess
+    import sys
+
+    from conftest import DATA
+
+    scan = DATA / "facewarehouse-tester1" / "pose_0.obj"
+    if not scan.is_file():
+        pytest.skip("../shared/data is not here")
+    env = dict(os.environ, FACEANIM_CACHE="off")
+    r = subprocess.run([sys.executable, "-m", "faceanim", "landmarks", str(scan), "-o", str(tmp_path / "l.json")],
+                       capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    (tmp_path / "empty.obj").write_text("")
+    r = subprocess.run([sys.executable, "-m", "faceanim", "wires", "extract", "--face", str(scan), "--template",
+                        str(tmp_path / "empty.obj"), "-o", str(tmp_path / "w.json")],
+                       capture_output=True, text=True, env=env, timeout=300)
+    assert r.returncode == 2 and len(r.stderr.splitlines()) == 1, r.stderr
+
+
+@pytest.mark.parametrize("argv", [
+    ["au", "{m}", "--au", "12", "-o", "{m}"],
+    ["landmarks", "{m}", "--from", "{j}", "-o", "{j}"],
+    ["transfer", "--source-neutral", "{m}", "--source-expressive", "{m2}", "--target", "{m2}", "-o", "{m}"],
+])
+def test_an_output_that_is_an_input_is_refused_and_left_as_it_is(argv, tmp_path, capsys):
+    import shutil
+
+    from conftest import DATA
+
+    scan = DATA / "facewarehouse-tester1" / "pose_0.obj"
+    if not scan.is_file():
+        pytest.skip("../shared/data is not here")
+    m, m2, j = tmp_path / "in.obj", tmp_path / "in2.obj", tmp_path / "in.json"
+    shutil.copy(scan, m)
+    shutil.copy(DATA / "facewarehouse-tester1" / "pose_1.obj", m2)
+    j.write_text('{"scheme": "basic22", "points": {}}')
+    before = {p: p.read_bytes() for p in (m, m2, j)}
+    rc, out, err = run([a.format(m=m, m2=m2, j=j) for a in argv], capsys)
+    assert rc == 2 and "is also an input; give the output its own path" in err and err.count("\n") == 1
+    assert all(p.read_bytes() == b for p, b in before.items())
+
+
+def test_a_stop_swallowed_on_its_way_up_still_stops_the_command(tmp_path, capsys, monkeypatch):
+    """A stop signal raised inside a finaliser is only printed by Python and the code goes on: the
+    stop is recorded, so the output is not put in place and the command exits 128 + n."""
+    import signal
+
+    import faceanim.cli.mesh as mesh_cli
+    from faceanim.errors import STOPS, Interrupted
+    from faceanim.io.files import atomic_output
+
+    out = tmp_path / "x.png"
+    out.write_bytes(b"before")
+
+    def render_and_swallow(args):
+        try:  # what a finaliser does with an exception: prints it and goes on
+            STOPS.append(signal.SIGTERM)
+            raise Interrupted(signal.SIGTERM)
+        except Interrupted:
+            pass
+        with atomic_output(args.output) as tmp:
+            tmp.write_bytes(b"after")
+
+    monkeypatch.setattr(mesh_cli, "_cmd_render", render_and_swallow)
+    rc, _, err = run(["render", "-o", out], capsys)
+    assert rc == 128 + signal.SIGTERM and err.strip() == "faceanim: interrupted (SIGTERM)"
+    assert out.read_bytes() == b"before" and [p.name for p in tmp_path.iterdir()] == ["x.png"]

@@ -278,7 +278,8 @@ def test_bad_input_one_line_exit_2(tmp_path, model, capsys):
         ([glb, "--port", "70000"], "--port"),
         ([glb, "--port", "-1"], "--port"),
         ([glb, "--port", "http"], "--port"),
-        ([glb, "--save-points", glb], "must end in .json"),
+        ([glb, "--save-points", glb], "is also an input"),  # the model itself: refused before anything
+        ([glb, "--save-points", glb.with_suffix(".txt")], "must end in .json"),
         ([glb, "--save-points", tmp_path / "nowhere" / "p.json"], "nowhere"),
         ([glb, "--photo", text], "not a .jpg or .png"),
         ([glb, "--photo", tmp_path / "missing.png"], "does not exist"),

@@ -25,6 +25,21 @@ class InputFileError(FaceAnimError):
     """A JSON or other input file is missing or malformed."""
 
 
+class Interrupted(KeyboardInterrupt):
+    """A stop signal (SIGINT, SIGTERM, SIGHUP) raised where the command is, so that it unwinds as on
+    Ctrl-C: temporary files and folders removed, no partial output, an existing output untouched."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+# the stop signals received by this process (the ``faceanim`` command records them): a stop that a
+# library swallows on its way up (an exception in a finaliser is only printed) is still seen before
+# an output is put in place (faceanim.io.files.atomic_output) and when the command ends
+STOPS: list[int] = []
+
+
 def shown(value, limit: int = 40, tail: bool = False) -> str:
     """A user-given name or token as it may appear in a one-line message: printable characters
     only (a terminal escape code in a file cannot reach the user's terminal), at most ``limit``

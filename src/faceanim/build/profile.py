@@ -581,8 +581,9 @@ def face_yaw(image) -> float | None:
     """
     img, _ = _resized(_as_image(image), SEGMENTATION_SIZE * 2)
     from faceanim.face.mediapipe import FaceMesh
+    from faceanim.io.files import native_stderr_quiet
 
-    with FaceMesh(video=False, confidence=0.3, what="profile points") as mesh:
+    with native_stderr_quiet(), FaceMesh(video=False, confidence=0.3, what="profile points") as mesh:
         p = mesh(img)
         if p is None:
             return None

@@ -95,29 +95,24 @@ def _join_axis_values(argv: list[str]) -> list[str]:
     return out
 
 
-class Interrupted(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, raised where the command is so that it unwinds as on Ctrl-C: temporary
-    files and folders removed, no partial output, an existing output untouched."""
-
-    def __init__(self, signum: int):
-        super().__init__(signum)
-        self.signum = signum
-
-
 def _raise_interrupted(signum, frame) -> None:
+    from faceanim.errors import STOPS, Interrupted
+
+    STOPS.append(signum)
     raise Interrupted(signum)
 
 
 def _stop_signals() -> dict:
-    """SIGTERM and SIGHUP raise :class:`Interrupted` (in the main thread, unless ignored on purpose,
-    as nohup does); returns the handlers to put back."""
+    """SIGINT, SIGTERM and SIGHUP are recorded and raise :class:`~faceanim.errors.Interrupted` (in the
+    main thread, unless ignored on purpose, as nohup and a shell's background jobs do); returns the
+    handlers to put back."""
     import signal
     import threading
 
     previous = {}
     if threading.current_thread() is not threading.main_thread():
         return previous
-    for sig in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)):
+    for sig in (signal.SIGINT, getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)):
         if sig is None:
             continue
         current = signal.getsignal(sig)
@@ -126,7 +121,28 @@ def _stop_signals() -> dict:
     return previous
 
 
+OUTPUTS = ("output", "image", "save_points")  # the options that name files a command writes
+
+
+def _outputs_are_not_inputs(args) -> None:
+    """Refuse an output that is one of the command's input files (it would be replaced by the run)."""
+    import os
+
+    outputs = [v for v in (getattr(args, n, None) for n in OUTPUTS) if isinstance(v, str) and v]
+    inputs = [x for k, v in sorted(vars(args).items()) if k not in OUTPUTS
+              for x in (v if isinstance(v, list) else [v]) if isinstance(x, str) and x and os.path.isfile(x)]
+    for out in outputs:
+        if os.path.isfile(out) and any(os.path.samefile(out, x) for x in inputs):
+            from faceanim.errors import shown
+
+            raise FaceAnimError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its "
+                                "own path")
+
+
 def main(argv: list[str] | None = None) -> int:
+    from faceanim.errors import STOPS
+
+    STOPS.clear()
     previous = _stop_signals()
     try:
         return _main(argv)
@@ -148,6 +164,7 @@ def _main(argv: list[str] | None = None) -> int:
                                 getattr(args, "fap_command", None), getattr(args, "mocap_command", None),
                                 getattr(args, "arkit_command", None)) if x)
     try:
+        _outputs_are_not_inputs(args)
         args.func(args)
     except FaceAnimError as exc:
         # printable characters only: a file name's escape codes must not reach the terminal
@@ -157,19 +174,32 @@ def _main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:  # Ctrl-C (SIGINT), SIGTERM, SIGHUP: exit 128 + the signal's number
         import signal
 
-        signum = getattr(exc, "signum", signal.SIGINT)
-        print(f"faceanim: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
-        return 128 + int(signum)
+        return _interrupted(getattr(exc, "signum", signal.SIGINT))
     except MemoryError:
         print(f"faceanim {name}: error: out of memory; try a smaller input, --size or --frames", file=sys.stderr)
         return 2
     except Exception as exc:  # a bug, not bad input: one line, the traceback with --verbose
+        from faceanim.errors import STOPS
+
+        if STOPS:  # a stop that a library turned into another error on its way up (an interrupted import)
+            return _interrupted(STOPS[0])
         if args.verbose:
             raise
         print(f"faceanim {name}: internal error ({type(exc).__name__}); please report it with the command "
               "line (run with --verbose for the traceback)", file=sys.stderr)
         return 1
+    from faceanim.errors import STOPS
+
+    if STOPS:  # a stop swallowed on its way up (printed by a finaliser): the command did not finish
+        return _interrupted(STOPS[0])
     return 0
+
+
+def _interrupted(signum: int) -> int:
+    import signal
+
+    print(f"faceanim: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
+    return 128 + int(signum)
 
 
 if __name__ == "__main__":

@@ -92,6 +92,9 @@ def _cmd_live(args) -> None:
                           sound=sound, mouth=args.mouth or "both")
     finally:
         signal.signal(signal.SIGTERM, previous)
+    from faceanim.errors import STOPS
+
+    STOPS.clear()  # a stop is how a live run ends (its report says so): exit 0
     if report.error:
         print(f"faceanim live: {report.error}; stopped", file=sys.stderr)
     print(("stopped: " if report.interrupted else "") + report.summary())

@@ -51,6 +51,9 @@ def _cmd_view(args) -> None:
             threading.Thread(target=webbrowser.open, args=(url,), daemon=True).start()
         server.serve_forever(poll_interval=0.2)
     except KeyboardInterrupt:
+        from faceanim.errors import STOPS
+
+        STOPS.clear()  # a stop is how the viewer ends: exit 0
         print("faceanim view: stopped", file=sys.stderr, flush=True)
     finally:
         signal.signal(signal.SIGTERM, previous)

@@ -312,10 +312,13 @@ def detect_landmarks_in_image(rgb: np.ndarray, scales=DETECTION_SCALES, agreemen
     if img.ndim != 3 or min(img.shape[:2]) < 32:
         raise LandmarkError(f"expected an RGB image of at least 32x32 pixels, got shape {img.shape}")
     from faceanim.face.mediapipe import FaceMesh
+    from faceanim.io.files import native_stderr_quiet
 
     h, w = img.shape[:2]
     found = []
-    with FaceMesh(video=False, confidence=0.3) as mesh:
+    # quiet from the graph's start to its close: its threads log (TensorFlow Lite's delegate, absl's
+    # warnings) when they please, not only while a call of ours runs
+    with native_stderr_quiet(), FaceMesh(video=False, confidence=0.3) as mesh:
         for s in scales:
             view, dx, dy = (img, 0, 0) if s == 1 else _zoom(img, s)
             p = mesh(view)

@@ -48,7 +48,8 @@ class FaceMesh:
     def __call__(self, rgb: np.ndarray) -> np.ndarray | None:
         img = np.ascontiguousarray(rgb)
         h, w = img.shape[:2]
-        result = self._fm.process(img)
+        with native_stderr_quiet():  # its first run logs TensorFlow Lite's delegate and absl warnings
+            result = self._fm.process(img)
         if not result.multi_face_landmarks:
             return None
         return np.array([[p.x * w, p.y * h, p.z * w] for p in result.multi_face_landmarks[0].landmark])
@@ -70,7 +71,7 @@ def face_detector(model: int, confidence: float = 0.3, what: str = "face detecti
     mp = mediapipe(what)
     with native_stderr_quiet(), mp.solutions.face_detection.FaceDetection(
             model_selection=model, min_detection_confidence=confidence) as fd:
-        def detect(rgb):
+        def detect(rgb):  # quiet: the whole block runs in native_stderr_quiet
             found = fd.process(np.ascontiguousarray(rgb)).detections or []
             return sorted(found, key=lambda d: -d.score[0])
         yield detect

@@ -270,6 +270,10 @@ def atomic_output(path: str | os.PathLike, what: str = "output") -> Iterator[Pat
             raise OutputError(f"cannot write {what} '{path}': {_reason(exc)}") from None
         if not os.path.exists(tmp):
             raise OutputError(f"cannot write {what} '{path}': its temporary file vanished while writing")
+        from faceanim.errors import STOPS, Interrupted
+
+        if STOPS:  # a stop came while writing and was swallowed on its way up: the output stays as it was
+            raise Interrupted(STOPS[0])
         try:
             # mkstemp creates the file private (0600); give the output the usual umask permissions
             umask = os.umask(0)

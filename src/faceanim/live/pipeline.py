@@ -111,6 +111,9 @@ def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None 
             if keep_samples:
                 report.samples.append(sample)
     except KeyboardInterrupt:
+        from faceanim.errors import STOPS
+
+        STOPS.clear()  # a stop ends a live run as it should: its file sinks are still written
         report.interrupted = True
     finally:
         source.stop()

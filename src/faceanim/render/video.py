@@ -135,9 +135,14 @@ def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=Non
                 pump.stop()
             if writer is not None and interrupted:
                 # ffmpeg is killed, not left to finish a file about to be removed (it would complain
-                # about the vanished file on the terminal)
+                # about the vanished file on the terminal), and waited for: a file it was making as it
+                # died could appear after ours is removed
+                ffmpeg = (writer.gi_frame.f_locals.get("p") if writer.gi_frame is not None else None)
                 with contextlib.suppress(BaseException):
                     writer.throw(KeyboardInterrupt)
+                if ffmpeg is not None and hasattr(ffmpeg, "wait"):
+                    with contextlib.suppress(Exception):
+                        ffmpeg.wait(timeout=10)
             elif writer is not None:
                 try:
                     writer.close()
