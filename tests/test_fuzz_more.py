@@ -471,3 +471,15 @@ def test_read_text_refuses_special_files_cleanly(folder):
     for p in (folder / "missing.txt", folder, Path("/dev/zero")):
         with pytest.raises(FaceAnimError):
             read_text(p)
+
+
+def test_a_template_of_another_format_is_refused(wire_base):
+    """A file whose 'format' is not this faceanim's wire template (another tool's, a newer version)
+    is refused, not read as if it were one (the outside sweep's finding)."""
+    from faceanim.rig.wires import WIRE_FORMAT, WireTemplate
+
+    d = json.loads(json.dumps(wire_base[2].to_dict()))
+    assert d["format"] == WIRE_FORMAT
+    d["format"] = "faceanim wires 2"
+    with pytest.raises(FaceAnimError, match="its 'format' is not 'faceanim wires 1'"):
+        WireTemplate.from_dict(d)

@@ -37,6 +37,7 @@ from faceanim.io.files import read_json, write_json
 from faceanim.limits import check_frames
 from faceanim.rig.rig import Rig
 
+WIRE_FORMAT = "faceanim wires 1"  # the wire template file's format tag
 MAX_WIRES = 200  # wires in one template file
 MAX_WIRE_CONTROLS = 1000  # control points of one wire
 MAX_EDITS = 10_000  # edits in one edit file
@@ -150,7 +151,7 @@ class WireTemplate:
 
     def to_dict(self) -> dict:
         return {
-            "format": "faceanim wires 1", "n_vertices": int(self.n_vertices), "k": self.wireset.k,
+            "format": WIRE_FORMAT, "n_vertices": int(self.n_vertices), "k": self.wireset.k,
             "meta": self.meta,
             "wires": [{"name": w.name, "group": g, "side": list(side) if side else None,
                        "reference": w.reference.control.round(9).tolist(),
@@ -171,6 +172,8 @@ class WireTemplate:
 
         if not isinstance(d, dict) or not isinstance(d.get("wires"), list) or not d["wires"]:
             raise bad("it needs a non-empty 'wires' list")
+        if "format" in d and d["format"] != WIRE_FORMAT:
+            raise bad(f"its 'format' is not '{WIRE_FORMAT}'; a file from another tool or a newer faceanim")
         if len(d["wires"]) > MAX_WIRES:
             raise bad(f"more than {MAX_WIRES} wires")
         try:
