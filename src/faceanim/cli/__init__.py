@@ -154,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None = None) -> int:
+    from faceanim.errors import STOPS
+
     argv = _join_axis_values(list(sys.argv[1:] if argv is None else argv))
     command = next((a for a in argv if not a.startswith("-")), "")
     args = build_parser(command).parse_args(argv)
@@ -167,6 +169,8 @@ def _main(argv: list[str] | None = None) -> int:
         _outputs_are_not_inputs(args)
         args.func(args)
     except FaceAnimError as exc:
+        if STOPS:  # the stop made a step fail (ffmpeg killed mid-file): it is the stop that is said
+            return _interrupted(STOPS[0])
         # printable characters only: a file name's escape codes must not reach the terminal
         message = "".join(c if c.isprintable() else "?" for c in str(exc))
         print(f"faceanim {name}: error: {message}", file=sys.stderr)
@@ -179,8 +183,6 @@ def _main(argv: list[str] | None = None) -> int:
         print(f"faceanim {name}: error: out of memory; try a smaller input, --size or --frames", file=sys.stderr)
         return 2
     except Exception as exc:  # a bug, not bad input: one line, the traceback with --verbose
-        from faceanim.errors import STOPS
-
         if STOPS:  # a stop that a library turned into another error on its way up (an interrupted import)
             return _interrupted(STOPS[0])
         if args.verbose:
@@ -188,8 +190,6 @@ def _main(argv: list[str] | None = None) -> int:
         print(f"faceanim {name}: internal error ({type(exc).__name__}); please report it with the command "
               "line (run with --verbose for the traceback)", file=sys.stderr)
         return 1
-    from faceanim.errors import STOPS
-
     if STOPS:  # a stop swallowed on its way up (printed by a finaliser): the command did not finish
         return _interrupted(STOPS[0])
     return 0
