@@ -98,7 +98,7 @@ class Animation:
             if isinstance(value, np.ndarray):
                 return len(value)
         if self.fap is not None:
-            return self.fap.n_frames
+            return self.need("fap", "").n_frames
         raise FaceAnimError("the animation has no frames")
 
 
