@@ -93,6 +93,11 @@ def test_glb_carries_the_faces_arkit_shapes_curves_and_head(tmp_path):
     np.testing.assert_allclose(weights, w[:, [column[n] for n in names]], atol=1e-6)
     q = head_quaternions(head, face.frame.rotation)
     np.testing.assert_allclose(np.abs(np.sum(rot * q, axis=1)), 1.0, atol=1e-5)  # the same rotations
+    # a still head (a take whose angles are all zero) still gets its head node, turned by nothing
+    [still] = write(tmp_path / "still.glb", Animation(30.0, arkit=w, head=np.zeros_like(head), face=face))
+    g = GLTF2().load(str(still))
+    paths = {ch.target.path for ch in g.animations[0].channels}
+    assert paths == {"weights", "rotation"} and any(n.name == "head" for n in g.nodes)
 
 
 def test_a_costly_field_is_made_only_for_a_format_that_needs_it(tmp_path, monkeypatch):

@@ -378,3 +378,7 @@ def test_a_stop_swallowed_on_its_way_up_still_stops_the_command(tmp_path, capsys
     rc, _, err = run(["render", "-o", out], capsys)
     assert rc == 128 + signal.SIGTERM and err.strip() == "faceanim: interrupted (SIGTERM)"
     assert out.read_bytes() == b"before" and [p.name for p in tmp_path.iterdir()] == ["x.png"]
+    assert STOPS == []  # said and forgotten: a caller in the same process writes its files again
+    with atomic_output(tmp_path / "y.png") as tmp:
+        tmp.write_bytes(b"y")
+    assert (tmp_path / "y.png").read_bytes() == b"y"

@@ -166,10 +166,11 @@ def _arkit(a: Animation) -> np.ndarray:
 
 
 def _head(a: Animation) -> np.ndarray | None:
+    """The head's (F, 3) angles, or None when the animation has none (a still head is zeros: a .glb
+    still gets its ``head`` node, as ARKit rigs expect)."""
     import numpy as np
 
-    head = a.need("head", "") if a.head is not None else None
-    return None if head is None or not np.any(head) else np.asarray(head, dtype=np.float64)
+    return np.asarray(a.need("head", ""), dtype=np.float64) if a.head is not None else None
 
 
 def write_csv(path: Path, a: Animation, progress=None) -> list[Path]:
@@ -275,7 +276,7 @@ def face_frames(a: Animation, chunk: int = 64):
         column = {apple_name(n): k for k, n in enumerate(ARKIT_NAMES)}
         curves = _arkit(a)[:, [column[c] for c in rig.controls]]
     head = None if a.rig is not None and a.rig_turns_head else _head(a)
-    rot = None if head is None else head_rotations(head, face.frame.rotation)
+    rot = None if head is None or not np.any(head) else head_rotations(head, face.frame.rotation)
     pivot = head_pivot(face) if rot is not None else None
     for s in range(0, len(curves), chunk):
         for j, v in enumerate(rig.evaluate(curves[s:s + chunk])):

@@ -151,6 +151,7 @@ def main(argv: list[str] | None = None) -> int:
 
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        STOPS.clear()  # this command's stops are said; a caller in the same process goes on
 
 
 def _main(argv: list[str] | None = None) -> int:
