@@ -479,7 +479,7 @@ def test_track_refuses_options_and_outputs(inp, at, capsys):
         refused(["track", video, "--quiet", *args], phrase, capsys, inp, at)
     (at / "c_folder.csv").mkdir()
     refused(["track", video, "-o", at / "c_folder.csv"], "is a folder", capsys, inp, at)
-    refused(["track", inp / "take.csv", "-o", inp / "take.csv"], "is the input video", capsys, inp, at)
+    refused(["track", inp / "take.csv", "-o", inp / "take.csv"], "is also an input", capsys, inp, at)
 
 
 # ------------------------------------------------------------------------------------ with real data

@@ -159,7 +159,7 @@ def test_bad_input(tmp_path, capsys):
         (["track", tmp_path / "none.mp4", "-o", out], "does not exist"),
         (["track", "-o", out], "a video file or --camera"),
         (["track", blank, "--camera", "0", "-o", out], "a video file or --camera"),
-        (["track", clip_csv, "-o", clip_csv], "is the input video"),
+        (["track", clip_csv, "-o", clip_csv], "is also an input"),
         (["track", blank, "--neutral-frame", "-1", "-o", out], "--neutral-frame"),
     ]:
         before = sorted(tmp_path.iterdir())
