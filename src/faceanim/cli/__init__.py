@@ -121,24 +121,6 @@ def _stop_signals() -> dict:
     return previous
 
 
-OUTPUTS = ("output", "image", "save_points")  # the options that name files a command writes
-
-
-def _outputs_are_not_inputs(args) -> None:
-    """Refuse an output that is one of the command's input files (it would be replaced by the run)."""
-    import os
-
-    outputs = [v for v in (getattr(args, n, None) for n in OUTPUTS) if isinstance(v, str) and v]
-    inputs = [x for k, v in sorted(vars(args).items()) if k not in OUTPUTS
-              for x in (v if isinstance(v, list) else [v]) if isinstance(x, str) and x and os.path.isfile(x)]
-    for out in outputs:
-        if os.path.isfile(out) and any(os.path.samefile(out, x) for x in inputs):
-            from faceanim.errors import shown
-
-            raise FaceAnimError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its "
-                                "own path")
-
-
 def main(argv: list[str] | None = None) -> int:
     from faceanim.errors import STOPS
 
@@ -160,14 +142,14 @@ def _main(argv: list[str] | None = None) -> int:
     argv = _join_axis_values(list(sys.argv[1:] if argv is None else argv))
     command = next((a for a in argv if not a.startswith("-")), "")
     args = build_parser(command).parse_args(argv)
-    from faceanim.cli.common import quiet_native_logs
+    from faceanim.cli.common import outputs_are_not_inputs, quiet_native_logs
 
     quiet_native_logs(args.verbose)
     name = " ".join(x for x in (args.command, getattr(args, "wires_command", None),
                                 getattr(args, "fap_command", None), getattr(args, "mocap_command", None),
                                 getattr(args, "arkit_command", None)) if x)
     try:
-        _outputs_are_not_inputs(args)
+        outputs_are_not_inputs(args)
         args.func(args)
     except FaceAnimError as exc:
         if STOPS:  # the stop made a step fail (ffmpeg killed mid-file): it is the stop that is said

@@ -225,6 +225,8 @@ def work(argv, out_dir, bound: dict) -> dict:
     (stdout and stderr) kept from the terminal."""
     from faceanim.cli import common
 
+    from faceanim.cli.common import outputs_are_not_inputs
+
     args = _parser().parse_args(argv)
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -235,6 +237,7 @@ def work(argv, out_dir, bound: dict) -> dict:
         # the command's report and notes (e.g. rig's shapes not made) stay out of the terminal:
         # a thousand tasks would print a thousand of them
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            outputs_are_not_inputs(args)  # as the command line checks it (the plan checks it too)
             args.func(args)
         written = common.REPORTED or [str(out)]
         root = Path(out_dir).resolve()

@@ -278,3 +278,17 @@ def play_own(args, out: Path, curves, fps: float, name: str, extras: dict | None
     for mesh, names in played.driven.items():
         print(f"{len(names)} ARKit curves onto the avatar's own targets of mesh '{shown(mesh, 60)}'")
     return out
+
+
+OUTPUTS = ("output", "image", "save_points")  # the options that name files a command writes
+
+
+def outputs_are_not_inputs(args) -> None:
+    """Refuse an output that is one of the command's input files (it would be replaced by the run)."""
+    outputs = [v for v in (getattr(args, n, None) for n in OUTPUTS) if isinstance(v, str) and v]
+    inputs = [x for k, v in sorted(vars(args).items()) if k not in OUTPUTS
+              for x in (v if isinstance(v, list) else [v]) if isinstance(x, str) and x and os.path.isfile(x)]
+    for out in outputs:
+        if os.path.isfile(out) and any(os.path.samefile(out, x) for x in inputs):
+            raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its "
+                               "own path")

@@ -15,7 +15,7 @@ from faceanim.cli.common import (
     report,
     stages,
 )
-from faceanim.errors import shown
+
 
 # a textured head: glTF and OBJ carry the texture atlas (PLY has no place for it)
 SUFFIXES = [".glb", ".obj", ".png"]
@@ -32,9 +32,6 @@ def _cmd_photo(args) -> None:
     if len(args.side or []) > 2:
         raise CommandError("give --side at most twice (a left and a right view)")
     check_outputs(args.output)
-    inputs = [Path(p).resolve() for p in [args.front, *(args.side or []), args.points] if p]
-    if out.resolve() in inputs:
-        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
     suffix = out.suffix.lower()
     with stages("photo", 5, args.quiet) as step:
         ph = head_from_photos(args.front, args.side or [], args.points, method=args.method,

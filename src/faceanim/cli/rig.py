@@ -109,9 +109,6 @@ def _cmd_rig(args) -> None:
 
     sets = parse_sets(args.set)
     out = Path(args.output)
-    inputs = [Path(p).resolve() for p in (face_path(args), args.landmarks) if p and p != "default"]
-    if out.resolve() in inputs:
-        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
     if args.forward.lstrip("+-") == args.up.lstrip("+-"):
         raise CommandError(f"--forward {args.forward} and --up {args.up} lie on one axis: they must be different axes")
     source = face_path(args)

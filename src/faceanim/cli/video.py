@@ -18,7 +18,7 @@ from faceanim.cli.common import (
     progress,
     report,
 )
-from faceanim.errors import shown
+
 from faceanim.export import WRITERS, suffixes
 from faceanim.limits import MAX_FRAMES
 
@@ -75,8 +75,6 @@ def _cmd_track(args) -> None:
     if (args.video is None) == (args.camera is None):
         raise CommandError("give a video file or --camera N (one of them)")
     out = Path(args.output)
-    if args.video is not None and out.resolve() == Path(args.video).resolve():
-        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is the input video; give the output its own path")
     check_outputs(args.output)
     if args.video is not None:
         info = video_info(args.video)
@@ -100,9 +98,6 @@ def _cmd_mocap_build(args) -> None:
     from faceanim.io.arkit_csv import read_arkit_csv
 
     out = Path(args.output)
-    inputs = [Path(p).resolve() for p in [*args.takes, args.head_motion] if p]
-    if out.resolve() in inputs:
-        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
     check_outputs(args.output)
     takes = [(Path(p).stem, read_arkit_csv(p)) for p in args.takes]
     motion = None
@@ -120,14 +115,12 @@ def _cmd_mocap_build(args) -> None:
     report([out])
 
 
-def _output(args, inputs, csv_is: str) -> tuple[Path, str]:
+def _output(args, csv_is: str) -> tuple[Path, str]:
     """The checked output path of a command that writes .glb, .mp4 or .csv of a face, and its
-    suffix: not one of ``inputs`` (or the face or landmarks), writable; a .csv (which ``csv_is``,
-    not a face) refuses --face and --landmarks."""
+    suffix: writable (that it is no input is checked for every command before it runs:
+    :func:`faceanim.cli.common.outputs_are_not_inputs`); a .csv (which ``csv_is``, not a face) refuses
+    --face and --landmarks."""
     out = Path(args.output)
-    named = [Path(p).resolve() for p in (*inputs, args.face, args.landmarks) if p]
-    if out.resolve() in named:
-        raise CommandError(f"the output '{shown(out, 80, tail=True)}' is also an input; give the output its own path")
     check_outputs(args.output)
     suffix = out.suffix.lower()
     if suffix in WRITERS and not WRITERS[suffix].shows_face and (args.face or args.landmarks):
@@ -142,7 +135,7 @@ def _cmd_perform(args) -> None:
     from faceanim.io.video import video_frames, video_info
     from faceanim.perform import default_database, perform, write_performance
 
-    out, suffix = _output(args, [args.video, args.db], "holds ARKit curves")
+    out, suffix = _output(args, "holds ARKit curves")
     if args.overlap > args.window:
         raise CommandError(f"--overlap ({args.overlap}) cannot exceed --window ({args.window})")
     info = video_info(args.video)
@@ -187,7 +180,7 @@ def _cmd_arkit_play(args) -> None:
     from faceanim.io.arkit_csv import read_arkit_csv
     from faceanim.perform import write_take
 
-    out, suffix = _output(args, [args.take], "is the take itself")
+    out, suffix = _output(args, "is the take itself")
     take = read_arkit_csv(args.take)
     n = int(take.duration * args.fps) + 1
     if n > MAX_FRAMES:
