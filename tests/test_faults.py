@@ -164,3 +164,56 @@ def test_a_truncated_manifest_is_refused_and_left_as_it_is(tmp_path):
         assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
         assert "is not a faceanim batch manifest (damaged or another file); move it away" in r.stderr
         assert manifest.read_bytes() == damaged  # a file faceanim cannot read is never overwritten
+
+
+def test_two_batches_on_one_folder_never_both_write(tmp_path):
+    """A second batch on a folder a running batch holds stops in one line (exit 2) and writes
+    nothing; two started together do each task once between them (the later one skips what the
+    first finished while it planned); every PNG is whole and the manifest says all is done."""
+    job = _boxes_job(tmp_path, 24, size=192)
+    out = tmp_path / "out"
+    first = subprocess.Popen([sys.executable, "-m", "faceanim", "batch", str(job), "-o", str(out), "--workers", "1",
+                              "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             preexec_fn=as_from_a_terminal)
+    try:
+        deadline = time.monotonic() + 300
+        while not (out / "faceanim-batch.sqlite").is_file() and first.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        before = sorted(p.name for p in out.glob("*.png"))
+        second = _faceanim("batch", job, "-o", out, "--workers", "1", "--quiet")
+        still_running = first.poll() is None
+        stdout, stderr = first.communicate(timeout=300)
+    finally:
+        if first.poll() is None:
+            first.kill()
+            first.communicate()
+    assert first.returncode == 0, stderr
+    assert still_running and len(before) < 24, "the first batch was over before the second started: proved nothing"
+    assert second.returncode == 2 and second.stderr.count("\n") == 1, second.stderr
+    assert "another faceanim batch is writing to" in second.stderr
+    assert "24 done, 0 skipped" in stdout, stdout
+    assert leftovers(out) == []
+
+    # two at once, into a fresh folder: each task is done by exactly one of them
+    out2 = tmp_path / "out2"
+    argv = [sys.executable, "-m", "faceanim", "batch", str(job), "-o", str(out2), "--workers", "1"]
+    runs = [subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             preexec_fn=as_from_a_terminal) for _ in range(2)]
+    results = [(p.communicate(timeout=300), p.returncode) for p in runs]
+    codes = sorted(rc for _, rc in results)
+    assert codes in ([0, 0], [0, 2]), results
+    done = 0
+    for (so, se), rc in results:
+        assert "Traceback" not in se and "internal error" not in se, se
+        if rc == 2:
+            assert "another faceanim batch is writing to" in se and se.count("\n") == 1, se
+        else:
+            done += int(so.split(" done,")[0].split()[-1])
+    assert done == 24, results
+    import imageio.v3 as iio
+
+    for k in range(24):
+        assert iio.imread(out2 / f"m{k:02d}.png").shape[:2] == (192, 192)
+    assert leftovers(out2) == []
+    again = _faceanim("batch", job, "-o", out2, "--workers", "1")
+    assert again.returncode == 0 and "0 done, 24 skipped" in again.stdout, again.stdout

@@ -189,8 +189,14 @@ def run(tasks: list[PlannedTask], out_dir, bind: Callable, work: Callable, *, sc
         if on_cluster_now:
             client = _client(scheduler, workers)
         out_dir.mkdir(exist_ok=True)
+        planned_unlocked = lock is None
         lock = lock or _lock(out_dir)
         manifest = Manifest(out_dir)
+        if planned_unlocked:  # a batch that held the folder between our plan and our lock did these
+            left = []
+            for t in todo:
+                (summary.skipped if manifest.is_done(t.output, t.signature, out_dir) else left).append(t)
+            todo = left
         if client is None:
             if on_start is not None:
                 on_start(summary)
