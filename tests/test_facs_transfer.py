@@ -69,6 +69,11 @@ def test_library_parsing_and_errors():
         unit = lib.action_unit(au)
         assert unit.region in ("upper", "lower") and unit.muscle and unit.points
     assert lib.parse_action_units("AU1, 2") == [1, 2]
+    for sloppy in ("12,", ",12", "1,,2", "", " , "):  # an empty item is a typo, never dropped
+        with pytest.raises(ActionUnitError, match="no empty item"):
+            lib.parse_action_units(sloppy)
+    with pytest.raises(ActionUnitError, match="AU12 is given twice"):
+        lib.parse_action_units("12,AU12")
     assert lib.intensity("E") == 1.0 and lib.intensity("0.5") == 0.5
     assert lib.emotion("happiness") == lib.emotion("joy")
     with pytest.raises(ActionUnitError, match="AU3"):

@@ -218,7 +218,7 @@ def test_vrm_on_a_mesh_without_eyeballs_skips_the_look_presets_and_says_so(tmp_p
 
 @pytest.mark.parametrize("args, message", [
     (["--set", "arkit,wings"], "unknown rig set 'wings'"),
-    (["--set", ","], "--set is empty"),
+    (["--set", ","], "--set has an empty item"),
     (["--title", "a\x01b"], "--title takes 1 to 200 printable characters"),
     (["--author", "x" * 201], "--author takes 1 to 200 printable characters"),
 ])

@@ -192,8 +192,10 @@ def test_missing_landmark_file(tmp_path, capsys):
 
 # ------------------------------------------------------------------------- --set, --title, --author
 @pytest.mark.parametrize("args, message", [
-    (["--set="], "--set is empty"),
-    (["--set", ",,,"], "--set is empty"),
+    (["--set="], "--set has an empty item"),
+    (["--set", ",,,"], "--set has an empty item"),
+    (["--set", "arkit,"], "--set has an empty item"),
+    (["--set", "arkit,,visemes"], "--set has an empty item"),
     (["--set", "Wings,visemes"], "unknown rig set 'wings'"),
     (["--title", "x" * 10_000], "--title takes 1 to 200 printable characters"),
     (["--title", " "], "--title takes 1 to 200 printable characters"),

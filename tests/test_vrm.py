@@ -488,7 +488,8 @@ def test_rig_writes_vrm0_with_a_licence_and_refuses_bad_ones(tmp_path, capsys):
     thumb = Image.open(io.BytesIO(gltf.binary_blob()[view.byteOffset:view.byteOffset + view.byteLength]))
     assert thumb.size == (512, 512) and np.asarray(thumb).std() > 10  # a rendered face, not a blank
     for bad, phrase in ((["--license", "avatarPermission=all"], "avatarPermission takes"),
-                        (["--license", "colour=red"], "is not a licence"), (["--vrm", "2"], "invalid choice")):
+                        (["--license", "colour=red"], "is not a licence"), (["--vrm", "2"], "invalid choice"),
+                        (["--license", "avatarPermission=everyone,"], "--license has an empty item")):
         assert main(["rig", "-o", str(tmp_path / "b.vrm"), "--set", "arkit", *bad]) == 2
         assert phrase in capsys.readouterr().err
     assert main(["rig", "-o", str(tmp_path / "c.glb"), "--vrm", "0"]) == 2

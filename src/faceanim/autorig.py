@@ -74,9 +74,10 @@ def full_rig(face: Face, sets=RIG_SETS, progress=None) -> Rig:
 
 def parse_sets(text: str) -> list[str]:
     """``"arkit,visemes"`` -> the sets in :data:`RIG_SETS` order; ``all`` for every set."""
-    asked = [s.strip().lower() for s in str(text).split(",") if s.strip()]
-    if not asked:
-        raise FaceAnimError(f"--set is empty; give one or more of: {', '.join(RIG_SETS)} (or all)")
+    asked = [s.strip().lower() for s in str(text).split(",")]
+    if "" in asked:
+        raise FaceAnimError(f"--set has an empty item; give one or more of: {', '.join(RIG_SETS)} (or all), "
+                            "separated by single commas")
     unknown = [s for s in asked if s not in RIG_SETS and s != "all"]
     if unknown:
         raise FaceAnimError(f"unknown rig set '{shown(unknown[0])}'; choose from: {', '.join(RIG_SETS)} (or all)")

@@ -78,7 +78,11 @@ def _licence(text: str) -> dict:
     if text.lower() in LICENSE_PRESETS:
         return dict(LICENSE_PRESETS[text.lower()])
     out: dict = {}
-    for item in (p.strip() for p in text.split(",") if p.strip()):
+    items = [p.strip() for p in text.split(",")]
+    if "" in items:
+        raise argparse.ArgumentTypeError(f"--license has an empty item; give {', '.join(LICENSE_PRESETS)} or "
+                                         "KEY=VALUE,... separated by single commas")
+    for item in items:
         key, eq, value = item.partition("=")
         key, value = key.strip(), value.strip()
         if not eq or key not in (*LICENSE_FIELDS, *LICENSE_FLAGS):
@@ -94,8 +98,6 @@ def _licence(text: str) -> dict:
                                              f"not '{shown(value, 40)}'")
         else:
             out[key] = value
-    if not out:
-        raise argparse.ArgumentTypeError(f"--license is empty; give {', '.join(LICENSE_PRESETS)} or KEY=VALUE,...")
     return out
 
 

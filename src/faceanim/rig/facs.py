@@ -116,10 +116,14 @@ class ActionUnitLibrary:
         text = str(text).strip()
         if text.lower() == "all":
             return sorted(self.action_units)
-        items = [t for t in text.replace(" ", "").split(",") if t]
-        if not items:
-            raise ActionUnitError("give action units as a comma list such as 1,2 or 'all'")
-        return [self.action_unit(t).number for t in items]
+        items = text.replace(" ", "").split(",")
+        if not text or "" in items:
+            raise ActionUnitError("give action units as a comma list such as 1,2 or 'all' (no empty item)")
+        numbers = [self.action_unit(t).number for t in items]
+        twice = sorted({n for n in numbers if numbers.count(n) > 1})
+        if twice:
+            raise ActionUnitError(f"AU{twice[0]} is given twice in the action unit list; give each once")
+        return numbers
 
     def intensity(self, value) -> float:
         """A FACS intensity letter (A-E) or a number in [0, 1] to the magnitude m."""
