@@ -168,6 +168,51 @@ def test_view_outlives_a_flood_of_idle_slow_and_oversized_clients_and_stops_at_o
             p.wait()
 
 
+def test_view_slow_readers_cannot_keep_a_browser_out_or_hold_the_stop(tmp_path):
+    """More slow readers than the viewer serves at once (each asks for a large file again and again
+    and never reads: the server's writes block), then a browser: it is answered promptly (the
+    oldest answer is cut for it), and Ctrl-C stops the viewer within a second."""
+    import socket
+    import time
+
+    from faceanim.viewer.server import MAX_CLIENTS
+    from test_viewer import _start, needs_vendor
+
+    if needs_vendor.args[0]:
+        pytest.skip(needs_vendor.kwargs["reason"])
+    p, url, port = _start([_animated_glb(tmp_path), "--port", "0"])
+    ask = b"GET /vendor/three/build/three.core.js HTTP/1.1\r\nHost: 127.0.0.1:%d\r\n\r\n" % port
+    socks = []
+    try:
+        for _ in range(MAX_CLIENTS + 6):
+            s = socket.socket()
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            s.settimeout(5)
+            s.connect(("127.0.0.1", port))
+            s.sendall(ask * 30)  # ~44 MB of answers asked for, none read
+            socks.append(s)
+        time.sleep(1.0)  # their answers have filled the buffers: every one of these threads is blocked
+        start = time.monotonic()
+        c = socket.create_connection(("127.0.0.1", port), timeout=10)
+        c.sendall(b"GET /api/info HTTP/1.1\r\nHost: 127.0.0.1:%d\r\nConnection: close\r\n\r\n" % port)
+        reply = b""
+        while chunk := c.recv(65536):
+            reply += chunk
+        c.close()
+        assert reply.startswith(b"HTTP/1.1 200") and b'"sound"' in reply
+        assert time.monotonic() - start < 3, time.monotonic() - start
+        p.send_signal(__import__("signal").SIGINT)
+        start = time.monotonic()
+        code = p.wait(timeout=10)
+        assert time.monotonic() - start < 1.0 and code == 0
+    finally:
+        for s in socks:
+            s.close()
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+
+
 # ------------------------------------------ 5: a detector fooled by a ball is caught by the one check
 @pytest.fixture
 def fooled_detector(monkeypatch):

@@ -15,9 +15,11 @@ Requests whose ``Host`` is not this server's own address (DNS rebinding) and pos
 origin are refused. A file is served only if it is what was given: the sound must be a regular
 WAV file in the model's own folder, never a symbolic link (its name comes from the model file, so
 a link could point anywhere), and it is opened without following one. Each connection waits at
-most :data:`REQUEST_SECONDS` for a request (a client that trickles headers is cut off), at most
+most :data:`REQUEST_SECONDS` for a request (a client that trickles headers is cut off) and for
+each part of an answer to be taken (a client that reads slowly is cut off), at most
 :data:`MAX_CLIENTS` are served at once (a new one cuts the connection that has waited longest for
-its request), and a stop (Ctrl-C) never waits for a client.
+its request or, with none waiting, the one that has been answered longest: a flood of idle or
+slow-reading sockets cannot keep a browser out), and a stop (Ctrl-C) never waits for a client.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ MAX_POST_BYTES = 8 << 20
 HOST = "127.0.0.1"
 DEFAULT_PORT = 8760
 REQUEST_SECONDS = 10.0  # a connection's socket timeout: an idle or slow client is let go after this
-MAX_CLIENTS = 64  # connections served at once; a new one past this cuts the longest-waiting idle one
+MAX_CLIENTS = 64  # connections served at once; a new one past this cuts the longest-waiting one
 PATH_SHOWN = 80
 
 
@@ -244,7 +246,7 @@ class _Handler(BaseHTTPRequestHandler):
             self.server.waiting(self.connection, False)
 
     def parse_request(self) -> bool:
-        self.server.waiting(self.connection, False)  # the head has come: the answer may take its time
+        self.server.answering(self.connection)  # the head has come: the reaper lets it be
         return super().parse_request()
 
     @property
@@ -396,11 +398,12 @@ class ViewerServer(ThreadingHTTPServer):
     request_queue_size = 128
 
     def process_request(self, request, client_address) -> None:
-        """Serve the connection in a thread of its own. With :data:`MAX_CLIENTS` being served, the
-        connection that has waited longest for its request's head is cut to make room (a flood of
-        idle or trickling sockets cannot keep a browser out); if none is waiting, the new one is closed."""
+        """Serve the connection in a thread of its own. With :data:`MAX_CLIENTS` being served, one
+        is cut to make room: the one that has waited longest for its request's head or, if none is
+        waiting, the one whose answer started longest ago (a flood of idle, trickling or slow-reading
+        sockets cannot keep a browser out: its connections are the newest)."""
         if not self._slots.acquire(blocking=False):
-            self._cut_oldest_waiting()
+            self._cut_oldest()
             if not self._slots.acquire(timeout=0.2):
                 self.shutdown_request(request)
                 return
@@ -418,20 +421,31 @@ class ViewerServer(ThreadingHTTPServer):
             self._slots.release()
 
     def waiting(self, connection, waiting: bool) -> None:
-        """Whether ``connection`` is waiting for a request's head (since now)."""
+        """Whether ``connection`` is waiting for a request's head (since now); not waiting: served
+        no more (its thread ends, or its request is answered and the next has not begun)."""
         import time
 
         with self._lock:
+            self._answering.pop(connection, None)
             if waiting:
                 self._waiting[connection] = time.monotonic()
             else:
                 self._waiting.pop(connection, None)
 
-    def _cut_oldest_waiting(self) -> None:
+    def answering(self, connection) -> None:
+        """``connection``'s request has come; its answer starts now."""
+        import time
+
+        with self._lock:
+            self._waiting.pop(connection, None)
+            self._answering[connection] = time.monotonic()
+
+    def _cut_oldest(self) -> None:
         import socket
 
         with self._lock:
-            oldest = min(self._waiting.items(), key=lambda item: item[1], default=(None, 0))[0]
+            pool = self._waiting or self._answering
+            oldest = min(pool.items(), key=lambda item: item[1], default=(None, 0))[0]
         if oldest is not None:
             try:
                 oldest.shutdown(socket.SHUT_RDWR)
@@ -464,7 +478,8 @@ class ViewerServer(ThreadingHTTPServer):
         self.viewer = viewer
         self._slots = threading.BoundedSemaphore(MAX_CLIENTS)
         self._lock = threading.Lock()
-        self._waiting: dict = {}
+        self._waiting: dict = {}  # connection -> since when it waits for a request's head
+        self._answering: dict = {}  # connection -> since when its answer is being sent
         self._closing = threading.Event()
         sep = "" if option.endswith(":") else " "
         try:
