@@ -1,10 +1,12 @@
-"""faceanim's optional parts (``pip install 'faceanim[speech,live,batch]'``): a command that needs
+"""faceanim's optional parts (``pip install 'faceanim[all]'``): a command that needs
 one that is not installed says which, in one line, before it starts.
 
 - ``speech``: pocketsphinx (aligning recorded speech with its transcript, hearing phones without
   one, live lip sync); ``say TEXT`` itself needs only espeak-ng;
 - ``live``: python-osc and websockets (``faceanim live``'s VMC and browser sinks), and pocketsphinx;
-- ``batch``: Dask's distributed scheduler and bokeh (``faceanim batch``).
+- ``batch``: Dask's distributed scheduler and bokeh (``faceanim batch``);
+- ``identity``: dlib and its face recognition network (``faceanim photo`` with side photos checks
+  that they show the front photo's person).
 
 ``bash scripts/setup.sh`` installs them all.
 """
@@ -16,7 +18,7 @@ import importlib
 from faceanim.errors import FaceAnimError
 
 EXTRAS = {"pocketsphinx": "speech", "pythonosc": "live", "websockets": "live", "distributed": "batch",
-          "dask": "batch"}
+          "dask": "batch", "dlib": "identity", "face_recognition_models": "identity"}
 
 
 class MissingExtra(FaceAnimError):

@@ -14,7 +14,8 @@ The paper's cloning half, step by step:
    a scaled rotation; a profile's yaw stays at 90 degrees). The front photo and a profile's
    silhouette points steer the 3D points; three-quarter views are measured to mislead depth (the
    face mesh's landmarks slide as the face turns, ``THREE_QUARTER_WEIGHT``) and give their
-   camera, their texture and a check that the views agree. The MPEG-4 feature points (FDPs) are
+   camera, their texture and a check that the views agree (and show one person's face:
+   :mod:`faceanim.build.identity`). The MPEG-4 feature points (FDPs) are
    read off the 3D landmarks.
 3. **Head modification** (2.1.2): the generic head (:mod:`faceanim.face.generic_head`) is moved
    by a global affine fit and then warped onto the 3D points by **Dirichlet free-form
@@ -62,7 +63,7 @@ MAX_FRONT_YAW = 20.0
 # show one head. Measured (front + three-quarter views): one man's own views 0.024; another
 # person's front with his views 0.027-0.054 (FaceWarehouse, the astronaut, four video frames), so
 # this refuses clearly different faces (8 of those 14 pairs) and never one person's views; faces of
-# similar shape cannot be told apart by geometry alone
+# similar shape cannot be told apart by geometry alone: faceanim.build.identity compares the faces
 DISAGREEMENT = 0.033
 # a side photo must turn the head at least this far from the front one (degrees of yaw)
 MIN_SIDE_TURN = 15.0
@@ -646,6 +647,10 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
     step("cameras and 3D points")
     rec = reconstruct(views, prior, normals)
     check_views(views, rec)
+    if len(views) > 1:
+        from faceanim.build.identity import check_one_person
+
+        check_one_person(views, [c.yaw_degrees - rec.cameras[0].yaw_degrees for c in rec.cameras[1:]], _named)
     timings["cameras and 3D points"] = time.perf_counter() - t
     t = time.perf_counter()
     step("fitting the head")
