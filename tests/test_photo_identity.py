@@ -9,16 +9,24 @@ import sys
 
 import numpy as np
 import pytest
-from PIL import Image
-
 from faceanim.cli import main
 
 pytest.importorskip("dlib", reason="faceanim's 'identity' extra is not installed")
-from test_cli_photo import MULTI, astronaut, needs_photos, run  # noqa: E402,F401 -- the fixture is used
+from test_cli_photo import MULTI, needs_photos, run  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def astronaut(tmp_path_factory):
+    from PIL import Image
+    from skimage import data
+
+    p = tmp_path_factory.mktemp("photos") / "astronaut.png"
+    Image.fromarray(data.astronaut()).save(p)
+    return p
 
 
 @needs_photos
-def test_a_side_photo_of_somebody_else_is_refused_though_the_shapes_agree(tmp_path, astronaut, capsys):  # noqa: F811
+def test_a_side_photo_of_somebody_else_is_refused_though_the_shapes_agree(tmp_path, astronaut, capsys):
     from faceanim.build.identity import SAME_PERSON
     from faceanim.build.photo import check_views, load_views, prior_points, reconstruct
     from faceanim.face.generic_head import generic_head
@@ -38,7 +46,7 @@ def test_a_side_photo_of_somebody_else_is_refused_though_the_shapes_agree(tmp_pa
 
 
 @needs_photos
-def test_descriptors_of_one_man_are_near_and_of_two_people_far(astronaut):  # noqa: F811
+def test_descriptors_of_one_man_are_near_and_of_two_people_far(astronaut):
     """The descriptor from MediaPipe's box agrees with the one from dlib's own face detector (an
     independent way to find the face); the man's three views lie within dlib's threshold of each
     other, the astronaut beyond it from each of them."""
@@ -80,7 +88,7 @@ def test_without_the_identity_extra_photo_with_sides_says_what_to_install(tmp_pa
     assert not out.exists()
 
 
-def test_a_front_photo_alone_needs_no_identity_check(tmp_path, astronaut, monkeypatch):  # noqa: F811
+def test_a_front_photo_alone_needs_no_identity_check(tmp_path, astronaut, monkeypatch):
     from faceanim.build import identity
 
     identity._models.cache_clear()
