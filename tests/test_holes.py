@@ -427,3 +427,27 @@ def test_a_stop_swallowed_on_its_way_up_still_stops_the_command(tmp_path, capsys
     with atomic_output(tmp_path / "y.png") as tmp:
         tmp.write_bytes(b"y")
     assert (tmp_path / "y.png").read_bytes() == b"y"
+
+
+# ------------------------- a line-oriented file's tokens are named, not echoed (the sweep's canaries)
+def test_a_token_of_a_fap_or_take_that_is_not_a_number_is_not_echoed(tmp_path, capsys):
+    secret = "password=hunter2"
+    values = " ".join(["0"] * 68)
+    fap = tmp_path / "canary.fap"
+    fap.write_text(f"2.1 x 25 {secret}\n{values}\n0\n")
+    rc, _, err = run(["fap", "play", fap, "-o", tmp_path / "x.csv"], capsys)
+    assert rc == 2 and err.count("\n") == 1 and "canary.fap:1: the frame count is not a number" in err, err
+    assert secret not in err
+    fap.write_text(f"2.1 x 25 1.5.3\n{values}\n0\n")  # a number's characters, wrongly: shown, it helps
+    rc, _, err = run(["fap", "play", fap, "-o", tmp_path / "x.csv"], capsys)
+    assert rc == 2 and "the frame count '1.5.3' is not a number" in err, err
+    rows = _rows()
+    rows[1][0] = secret
+    take = write_take(tmp_path / "canary.csv", rows)
+    rc, _, err = run(["arkit", "play", take, "-o", tmp_path / "x.csv"], capsys)
+    assert rc == 2 and err.count("\n") == 1 and "line 3: the timecode is not HH:MM:SS:FF.fff" in err, err
+    assert secret not in err
+    rows[1][0] = "00:00:61:00.000"  # a timecode's characters, out of range: shown
+    rc, _, err = run(["arkit", "play", write_take(tmp_path / "range.csv", rows), "-o", tmp_path / "x.csv"], capsys)
+    assert rc == 2 and "timecode '00:00:61:00.000' is out of range" in err, err
+    assert not (tmp_path / "x.csv").exists()

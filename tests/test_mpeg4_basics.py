@@ -72,7 +72,7 @@ def test_real_world_quirks():
     ("2.1 x 25 2\n" + "0 " * 68 + "\n0\n", "promises 2 frames but the file has 1"),
     ("2.1 x 25 1\n" + "0 " * 67 + "\n0\n", ":2: a mask line needs 68 bits"),
     ("2.1 x 25 1\n1 " + "0 " * 67 + "\n0\n", ":3: the mask on line 2 sets 1 FAPs, so this line needs 5 numbers"),
-    ("2.1 x 25 1\n0 0 1 " + "0 " * 65 + "\n0 abc\n", ":3: value 'abc' is not a number"),
+    ("2.1 x 25 1\n0 0 1 " + "0 " * 65 + "\n0 abc\n", ":3: value is not a number"),
     ("2.1 x -5 0\n", "frame rate must be positive"),
     ("2.1 x 25 1\n" + "2 " * 68 + "\n0\n", "mask bits must be 0 or 1"),
 ])

@@ -79,8 +79,9 @@ class ArkitTake:
 
 def _timecode(text: str, where: str) -> float:
     m = TIMECODE.match(text.strip())
-    if not m:
-        raise InputFileError(f"{where}: timecode '{shown(text)}' is not HH:MM:SS:FF.fff")
+    if not m:  # shown only if written with a timecode's characters (a file's other content is not echoed)
+        said = f" '{text.strip()}'" if re.fullmatch(r"[0-9:.]{1,24}", text.strip()) else ""
+        raise InputFileError(f"{where}: the timecode{said} is not HH:MM:SS:FF.fff")
     h, mi, s = int(m.group(1)), int(m.group(2)), int(m.group(3))
     frames = float(m.group(4))
     if mi > 59 or s > 59 or frames >= TIMECODE_RATE:

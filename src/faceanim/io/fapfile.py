@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -39,23 +40,27 @@ MAX_FAP_BYTES = 1 << 30  # 1 GiB: far above MAX_FRAMES frames of 68 values
 
 
 def _show(token: str) -> str:
-    """A token of the file, quoted for an error message when it is short and printable."""
-    return f"'{token}'" if len(token) <= 24 and token.isprintable() else f"of {len(token)} characters"
+    """A token of the file as an error message names it (with a leading space): only when written as a number
+    (short, digits, sign, point, exponent); anything else is described, never shown (a file that is
+    no .fap at all may hold anything, and its content is not echoed)."""
+    if len(token) <= 24 and re.fullmatch(r"[0-9eE.+-]+|[+-]?(?i:nan|inf|infinity)", token):
+        return f" '{token}'"
+    return ""
 
 
 def _number(token: str, path, line_no: int, what: str) -> float:
     try:
         value = float(token)
     except ValueError:
-        raise InputFileError(f"{path}:{line_no}: {what} {_show(token)} is not a number") from None
+        raise InputFileError(f"{path}:{line_no}: {what}{_show(token)} is not a number") from None
     if not math.isfinite(value):
-        raise InputFileError(f"{path}:{line_no}: {what} {_show(token)} is not a finite number")
+        raise InputFileError(f"{path}:{line_no}: {what}{_show(token)} is not a finite number")
     return value
 
 
 def _whole(value: float, token: str, path, line_no: int, what: str, low: float, high: float) -> int:
     if value != int(value) or not low <= value <= high:
-        raise InputFileError(f"{path}:{line_no}: {what} {_show(token)} must be a whole number from "
+        raise InputFileError(f"{path}:{line_no}: {what}{_show(token)} must be a whole number from "
                              f"{int(low)} to {int(high)}")
     return int(value)
 
@@ -85,11 +90,11 @@ def parse_fap(text: str, path: str = "<fap>") -> FapStream:
     fps = _number(tokens[-2], path, n0, "the frame rate")
     count = _number(tokens[-1], path, n0, "the frame count")
     if fps <= 0:
-        raise InputFileError(f"{path}:{n0}: the frame rate must be positive, got {_show(tokens[-2])}")
+        raise InputFileError(f"{path}:{n0}: the frame rate must be positive, got{_show(tokens[-2])}")
     if fps > MAX_FPS:
         raise InputFileError(f"{path}:{n0}: the frame rate {fps:g} is above faceanim's limit of {MAX_FPS:g} fps")
     if count != int(count) or count < 0:
-        raise InputFileError(f"{path}:{n0}: the frame count must be a whole number, got {_show(tokens[-1])}")
+        raise InputFileError(f"{path}:{n0}: the frame count must be a whole number, got{_show(tokens[-1])}")
     if count > MAX_FRAMES:
         raise InputFileError(f"{path}:{n0}: the header promises {count:g} frames, more than faceanim's limit "
                              f"of {MAX_FRAMES}")
@@ -139,7 +144,7 @@ def parse_fap(text: str, path: str = "<fap>") -> FapStream:
             pos += 6
         for x, t in zip(nums[pos:], tokens[pos:]):
             if abs(x) > MAX_FAP_VALUE:
-                raise InputFileError(f"{path}:{nv}: value {_show(t)} is beyond +-{MAX_FAP_VALUE:g} FAPU units; "
+                raise InputFileError(f"{path}:{nv}: value{_show(t)} is beyond +-{MAX_FAP_VALUE:g} FAPU units; "
                                      "check the file")
         rest = np.flatnonzero(m[2:]) + 2
         values[k, rest] = nums[pos:]
