@@ -17,7 +17,7 @@ from importlib import resources
 
 import numpy as np
 
-from faceanim.errors import FaceAnimError, LandmarkError
+from faceanim.errors import FaceAnimError, LandmarkError, shown
 from faceanim.face.frame import FaceFrame, face_frame
 from faceanim.face.landmarks import SLITS
 from faceanim.face.mesh import Mesh
@@ -132,7 +132,7 @@ class ActionUnitLibrary:
         try:
             m = float(value)
         except (TypeError, ValueError):
-            raise ActionUnitError(f"intensity must be A-E or a number in [0, 1], got {value!r}") from None
+            raise ActionUnitError(f"intensity must be A-E or a number in [0, 1], got '{shown(value)}'") from None
         if not np.isfinite(m) or m < 0 or m > 1:
             raise ActionUnitError(f"magnitude m must be in [0, 1], got {value}")
         return m
