@@ -121,6 +121,56 @@ def test_view_never_serves_a_file_a_sound_link_points_at(tmp_path):
         server.server_close()
 
 
+def test_view_never_serves_a_link_put_in_place_of_its_model_or_photo(tmp_path):
+    """The model and photo given at start (through a link if the user gave one) are served; a link
+    swapped in for either while the viewer runs is refused (the sweep read /etc/passwd so)."""
+    import http.client
+    import shutil
+    import threading
+
+    from PIL import Image
+
+    from faceanim.viewer import server as srv
+
+    secret = tmp_path / "secret.txt"
+    secret.write_text("a private key")
+    real = _animated_glb(tmp_path)
+    glb = tmp_path / "given.glb"
+    glb.symlink_to(real)  # a link given by the user is followed once, at start
+    photo = tmp_path / "p.png"
+    Image.fromarray(np.full((64, 64, 3), 128, np.uint8)).save(photo)
+    viewer = srv.Viewer(srv.check_model(glb), [srv.Photo(photo, 64, 64)])
+    server = srv.ViewerServer(viewer, 0)
+    threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True).start()
+    try:
+        port = server.server_address[1]
+
+        def get(path):
+            c = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+            c.request("GET", path, headers={"Host": f"127.0.0.1:{port}"})
+            r = c.getresponse()
+            return r.status, r.read()
+
+        assert get("/model") == (200, real.read_bytes())
+        assert get("/photo/0") == (200, photo.read_bytes())
+        kept = tmp_path / "kept.glb"
+        shutil.move(real, kept)
+        real.symlink_to(secret)
+        photo.unlink()
+        photo.symlink_to(secret)
+        for path in ("/model", "/photo/0"):
+            status, body = get(path)
+            assert status == 404 and b"private" not in body, (path, status)
+        status, body = get("/api/info")
+        assert status == 200 and b'"size": 0' in body  # the link's target is not even measured
+        real.unlink()
+        shutil.move(kept, real)  # a model exported again (a regular file) is served as it is now
+        assert get("/model") == (200, real.read_bytes())
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
 def test_view_outlives_a_flood_of_idle_slow_and_oversized_clients_and_stops_at_once(tmp_path):
     import socket
     import time

@@ -346,8 +346,10 @@ def build_gltf(mesh: Mesh, blendshapes: Mapping[str, np.ndarray] | None = None,
 
 def glb_json(path: str | os.PathLike, limit: int = 64 << 20) -> dict | None:
     """The JSON chunk of a GLB file (None when the file is not a readable GLB); only the header
-    and that chunk are read."""
+    and that chunk are read; a pipe or device is no GLB (reading it could wait for ever)."""
     try:
+        if not Path(path).is_file():
+            return None
         with open(path, "rb") as fh:
             head = fh.read(20)
             if len(head) < 20 or head[:4] != b"glTF":

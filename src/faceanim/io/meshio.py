@@ -416,6 +416,8 @@ def _load_with_trimesh(path: Path) -> Mesh:
         log.setLevel(level)
     if vertices.ndim != 2 or vertices.shape[1:] != (3,) or faces.ndim != 2 or faces.shape[1:] != (3,):
         raise MeshError(f"mesh '{path}' is not a triangle mesh; re-export it")
+    if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+        raise MeshError(f"mesh '{path}' has triangles that name vertices it does not have (damaged); re-export it")
     if doc and doc.get("images") and doc.get("textures") and uv is not None and texture is None:
         raise MeshError(f"mesh '{path}' names a texture that cannot be read (damaged or not an image); "
                         "re-export it, or remove the texture")

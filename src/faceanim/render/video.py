@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from faceanim.errors import FaceAnimError
+from faceanim.errors import FaceAnimError, shown
 from faceanim.io.files import atomic_output
 from faceanim.limits import check_fps, check_video
 
@@ -78,6 +78,7 @@ class _Pump:
         self._raise()
 
 
+FULL_DISK_BYTES = 16 << 20  # ffmpeg failed and less than this is free where it wrote: the disk is full
 FFMPEG_FAILED = ("ffmpeg could not encode the video; check that the sound is a readable audio file and that the "
                  "disk has room (run with --verbose for ffmpeg's message)")
 
@@ -99,7 +100,7 @@ def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=Non
         read_audio(audio, "sound for the video")  # a clean error now rather than ffmpeg's later
     path = Path(path)
     with atomic_output(path) as tmp:
-        writer = pump = None
+        writer = pump = ffmpeg = None
         try:
             for frame in frames:
                 frame = np.ascontiguousarray(frame, dtype=np.uint8)
@@ -117,8 +118,10 @@ def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=Non
                         quality=None, bitrate=None,
                         output_params=["-crf", CRF, "-preset", PRESET, "-threads", str(ENCODER_THREADS),
                                        "-movflags", "+faststart"],
-                        macro_block_size=1, ffmpeg_log_level="error", **sound)
+                        macro_block_size=1, ffmpeg_log_level="error" if os.environ.get("FACEANIM_VERBOSE") else "quiet",
+                        **sound)
                     writer.send(None)
+                    ffmpeg = writer.gi_frame.f_locals.get("p") if writer.gi_frame is not None else None
                     pump = _Pump(writer)
                 elif frame.shape != (size[1], size[0], 3):
                     raise FaceAnimError(f"video frame of shape {frame.shape} after frames of {size[0]}x{size[1]}")
@@ -137,7 +140,6 @@ def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=Non
                 # ffmpeg is killed, not left to finish a file about to be removed (it would complain
                 # about the vanished file on the terminal), and waited for: a file it was making as it
                 # died could appear after ours is removed
-                ffmpeg = (writer.gi_frame.f_locals.get("p") if writer.gi_frame is not None else None)
                 with contextlib.suppress(BaseException):
                     writer.throw(KeyboardInterrupt)
                 if ffmpeg is not None and hasattr(ffmpeg, "wait"):
@@ -147,5 +149,24 @@ def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=Non
                 try:
                     writer.close()
                 except Exception as exc:  # noqa: BLE001 - ffmpeg's exit status, with its raw log
-                    raise FaceAnimError(FFMPEG_FAILED) from exc
+                    raise FaceAnimError(_failed(tmp)) from exc
+                # imageio-ffmpeg does not look at how ffmpeg ended: a file it could not finish (its
+                # trailer on a full disk) must not replace the user's
+                code = ffmpeg.poll() if ffmpeg is not None and hasattr(ffmpeg, "poll") else 0
+                if code != 0 and stopped is None:
+                    raise FaceAnimError(_failed(tmp))
     return path
+
+
+def _failed(tmp: Path) -> str:
+    """What to say when ffmpeg did not finish the file ``tmp``: a full disk by name."""
+    import shutil
+
+    try:
+        full = shutil.disk_usage(tmp.parent).free < FULL_DISK_BYTES
+    except OSError:
+        full = False
+    if full:
+        return (f"the disk holding '{shown(tmp.parent, 80, tail=True)}' is full; free some space and run the "
+                "command again")
+    return FFMPEG_FAILED

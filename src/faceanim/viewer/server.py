@@ -73,13 +73,20 @@ def check_vendor(vrm: bool = False) -> None:
 
 @dataclass
 class Model:
-    """A model file checked for serving: its path, kind (``glb`` or ``vrm``), glTF JSON and sound."""
+    """A model file checked for serving: its path, kind (``glb`` or ``vrm``), glTF JSON and sound;
+    ``served``: the file the path named when checked (links resolved then), opened at each request
+    without following a link (a link put in its place later is refused)."""
 
     path: Path
     kind: str
     doc: dict
     sound: Path | None = None
     extras: dict = field(default_factory=dict)
+    served: Path | None = None
+
+    def __post_init__(self):
+        if self.served is None:
+            self.served = self.path.resolve()
 
 
 def _named(path) -> str:
@@ -161,9 +168,16 @@ def open_no_link(path: Path):
 
 @dataclass
 class Photo:
+    """A photo to pick points on; ``served`` as for :class:`Model`."""
+
     path: Path
     width: int
     height: int
+    served: Path | None = None
+
+    def __post_init__(self):
+        if self.served is None:
+            self.served = self.path.resolve()
 
 
 def check_photo(path: str | os.PathLike) -> Photo:
@@ -189,6 +203,17 @@ class Viewer:
         self.saved = 0
         self.live: dict | None = None  # faceanim live --to viewer: where the page finds the stream
 
+    @property
+    def model_size(self) -> int:
+        """The served model's size in bytes now (0 if it is gone or no longer a regular file)."""
+        import stat
+
+        try:
+            st = os.lstat(self.model.served)
+        except OSError:
+            return 0
+        return st.st_size if stat.S_ISREG(st.st_mode) else 0
+
     def info(self) -> dict:
         from faceanim.viewer.groups import group_targets, target_names
         from faceanim.viewer.points import point_names
@@ -196,7 +221,7 @@ class Viewer:
         names = target_names(self.model.doc)
         return {
             "model": {"name": self.model.path.name, "kind": self.model.kind, "url": "/model",
-                      "size": self.model.path.stat().st_size},
+                      "size": self.model_size},
             "groups": group_targets(names, self.model.extras.get("morph_sets")),
             "sound": {"name": self.model.sound.name, "url": "/sound"} if self.model.sound else None,
             "photos": [{"name": ph.path.name, "url": f"/photo/{k}", "width": ph.width, "height": ph.height}
@@ -341,12 +366,13 @@ class _Handler(BaseHTTPRequestHandler):
             else:
                 self._file(target, cache=True, head=head)
         elif path == "/model":
-            self._file(v.model.path, "model/gltf-binary", head=head)
+            self._file(v.model.served, "model/gltf-binary", head=head, no_link=True)
         elif path == "/sound" and v.model.sound is not None:
             self._file(v.model.sound, "audio/wav", head=head, no_link=True)
         elif path.startswith("/photo/") and path[7:].isdigit() and int(path[7:]) < len(v.photos):
-            photo = v.photos[int(path[7:])].path
-            self._file(photo, "image/png" if photo.suffix.lower() == ".png" else "image/jpeg", head=head)
+            photo = v.photos[int(path[7:])].served
+            self._file(photo, "image/png" if photo.suffix.lower() == ".png" else "image/jpeg", head=head,
+                       no_link=True)
         elif path == "/api/info":
             self._json(HTTPStatus.OK, v.info())
         elif path == "/favicon.ico":
