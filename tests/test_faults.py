@@ -217,3 +217,22 @@ def test_two_batches_on_one_folder_never_both_write(tmp_path):
     assert leftovers(out2) == []
     again = _faceanim("batch", job, "-o", out2, "--workers", "1")
     assert again.returncode == 0 and "0 done, 24 skipped" in again.stdout, again.stdout
+
+
+def test_an_mp4_that_does_not_fit_on_the_disk_leaves_the_old_file_and_says_so(tmp_path):
+    """ffmpeg cannot write its trailer on a full disk; the command used to say 'wrote' with exit 0
+    and replace the user's file with the broken one."""
+    small = tmp_path / "small"
+    small.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", str(small)], capture_output=True).returncode:
+        pytest.skip("cannot mount a small tmpfs here (needs root)")
+    try:
+        (small / "filler").write_bytes(os.urandom(176_000))  # about 20 kB left: less than the video
+        out = small / "out.mp4"
+        out.write_bytes(OLD)
+        r = _faceanim("say", "hello there", "-o", out, "--quiet", "--size", "256")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert "is full; free some space and run the command again" in r.stderr
+        assert out.read_bytes() == OLD and leftovers(small) == []
+    finally:
+        subprocess.run(["umount", str(small)], capture_output=True)

@@ -501,3 +501,55 @@ def test_a_token_of_a_fap_or_take_that_is_not_a_number_is_not_echoed(tmp_path, c
     rc, _, err = run(["arkit", "play", write_take(tmp_path / "range.csv", rows), "-o", tmp_path / "x.csv"], capsys)
     assert rc == 2 and "timecode '00:00:61:00.000' is out of range" in err, err
     assert not (tmp_path / "x.csv").exists()
+
+
+# ------------------------------------------------ the second sweep: a GLB's triangles, a FIFO named .glb
+def _patched_glb(src, dst):
+    """``src`` with its first triangle's first index pointing past the vertices."""
+    import pygltflib
+
+    g = pygltflib.GLTF2().load(str(src))
+    blob = bytearray(g.binary_blob())
+    prim = g.meshes[0].primitives[0]
+    acc = g.accessors[prim.indices]
+    view = g.bufferViews[acc.bufferView]
+    width = {5121: 1, 5123: 2, 5125: 4}[acc.componentType]
+    at = (view.byteOffset or 0) + (acc.byteOffset or 0)
+    blob[at:at + width] = (2 ** (8 * width) - 1).to_bytes(width, "little")
+    g.set_binary_blob(bytes(blob))
+    g.save_binary(str(dst))
+    return dst
+
+
+@pytest.mark.parametrize("writer", ["faceanim", "trimesh"])
+def test_a_glb_whose_triangles_name_missing_vertices_is_refused(tmp_path, capsys, writer):
+    import trimesh
+
+    from faceanim.face.default import default_face
+    from faceanim.io.meshio import save_mesh
+
+    src = tmp_path / "src.glb"
+    if writer == "faceanim":
+        save_mesh(default_face(), src)
+    else:
+        trimesh.creation.box().export(src)
+    bad = _patched_glb(src, tmp_path / "bad.glb")
+    for argv in (["render", bad, "-o", tmp_path / "x.png", "--size", "64"],
+                 ["au", bad, "--au", "12", "-o", tmp_path / "x.obj"]):
+        rc, _, err = run(argv, capsys)
+        assert rc == 2 and err.count("\n") == 1, err
+        assert "has triangles that name vertices it does not have" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.glb", "src.glb"]
+
+
+def test_rig_of_a_pipe_named_glb_is_refused_at_once(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    fifo = tmp_path / "pipe.glb"
+    os.mkfifo(fifo)
+    r = subprocess.run([sys.executable, "-m", "faceanim", "rig", str(fifo), "-o", str(tmp_path / "o.glb"), "--quiet"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is not a regular file" in r.stderr, r.stderr
+    assert not (tmp_path / "o.glb").exists()
