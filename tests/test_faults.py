@@ -236,3 +236,48 @@ def test_an_mp4_that_does_not_fit_on_the_disk_leaves_the_old_file_and_says_so(tm
         assert out.read_bytes() == OLD and leftovers(small) == []
     finally:
         subprocess.run(["umount", str(small)], capture_output=True)
+
+
+def test_demo_stopped_anywhere_leaves_its_folder_as_it_was(tmp_path):
+    """demo writes a dozen files: all of them or none (the sweep found demo.glb replaced and 13 new
+    PNGs beside no MP4 after a SIGTERM)."""
+    out = tmp_path / "demo"
+    start = time.perf_counter()
+    r = subprocess.run([sys.executable, "-m", "faceanim", "demo", "--out", str(out), "--size", "128", "--quiet"],
+                       capture_output=True, timeout=300, preexec_fn=as_from_a_terminal)
+    seconds = time.perf_counter() - start
+    assert r.returncode == 0, r.stderr
+    names = sorted(p.name for p in out.iterdir())
+    assert "demo.glb" in names and "demo.mp4" in names and len(names) > 10
+    codes = []
+    for signum, fraction in ((signal.SIGTERM, 0.5), (signal.SIGINT, 0.75), (signal.SIGHUP, 0.9)):
+        for p in out.iterdir():
+            p.write_bytes(OLD)
+        (out / "mine.txt").write_bytes(OLD)
+        p = subprocess.Popen([sys.executable, "-m", "faceanim", "demo", "--out", str(out), "--size", "128", "--quiet"],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=as_from_a_terminal)
+        time.sleep(fraction * seconds)
+        p.send_signal(signum)
+        _, err = p.communicate(timeout=120)
+        codes.append(p.returncode)
+        assert b"Traceback" not in err, err
+        contents = {q.name: q.read_bytes() for q in out.iterdir()}
+        assert contents["mine.txt"] == OLD
+        if p.returncode == 128 + signum:
+            assert err.decode().strip() == f"faceanim: interrupted ({signal.Signals(signum).name})"
+            assert all(v == OLD for v in contents.values()), "a stopped demo replaced some of its files"
+        else:  # finished first: every file is new
+            assert p.returncode in (0, -signum), err
+            assert all(v != OLD for k, v in contents.items() if k != "mine.txt")
+        assert leftovers(tmp_path) == [] and leftovers(out) == []
+    assert sum(c > 128 for c in codes) >= 2, codes
+    # a demo into a folder that did not exist, stopped: no folder
+    fresh = tmp_path / "fresh"
+    p = subprocess.Popen([sys.executable, "-m", "faceanim", "demo", "--out", str(fresh), "--size", "128", "--quiet"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=as_from_a_terminal)
+    time.sleep(0.5 * seconds)
+    p.send_signal(signal.SIGTERM)
+    p.communicate(timeout=120)
+    if p.returncode == 128 + signal.SIGTERM:
+        assert not fresh.exists()
+    assert leftovers(tmp_path) == []

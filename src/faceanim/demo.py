@@ -69,13 +69,21 @@ def emotion_blendshapes(face: Face) -> dict[str, np.ndarray]:
 
 def run_demo(out_dir: str | Path = "faceanim-demo", fps: float = DEFAULT_FPS, size: int = 512,
              quiet: bool = False, progress=None) -> list[Path]:
-    """Build the default face and its expressions; write demo.glb, demo.mp4 and PNGs to ``out_dir``.
-    ``progress``: an optional callable taking the name of each stage as it starts."""
+    """Build the default face and its expressions; write demo.glb, demo.mp4 and PNGs to ``out_dir``,
+    all or none (made in a staging folder, moved in at the end: a stop or a full disk leaves the
+    folder as it was). ``progress``: an optional callable taking the name of each stage as it starts."""
+    from faceanim.io.files import atomic_folder
+
+    out = Path(out_dir)
+    with atomic_folder(out, "demo folder") as stage:
+        made = _make_demo(stage, fps, size, quiet, progress)
+    return [out / p.name for p in made]
+
+
+def _make_demo(out: Path, fps: float, size: int, quiet: bool, progress) -> list[Path]:
     from tqdm import tqdm
 
     step = progress or (lambda name: None)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     step("the default face and its expressions")
     face = Face.default()
     shapes = expression_rig(face.mesh, demo_expressions(default_landmarks(face.mesh))).blendshape_dict()

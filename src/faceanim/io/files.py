@@ -232,9 +232,14 @@ def remove_stale_temps(folder: str | os.PathLike) -> list[Path]:
         if not 0 < pid <= _MAX_PID or _pid_alive(pid):
             continue
         try:
-            if not entry.is_file(follow_symlinks=False):
+            if entry.is_dir(follow_symlinks=False):  # a staging folder (atomic_folder)
+                import shutil
+
+                shutil.rmtree(entry.path)
+            elif entry.is_file(follow_symlinks=False):
+                os.unlink(entry.path)
+            else:
                 continue
-            os.unlink(entry.path)
             removed.append(Path(entry.path))
         except OSError:
             pass
@@ -287,6 +292,44 @@ def atomic_output(path: str | os.PathLike, what: str = "output") -> Iterator[Pat
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
             _unregister(tmp)
+
+
+@contextlib.contextmanager
+def atomic_folder(folder: str | os.PathLike, what: str = "output folder") -> Iterator[Path]:
+    """Yield a hidden staging folder beside ``folder``; only if the block succeeds are its files
+    moved into ``folder`` (made if missing), all with no stop between them. A failing or stopped
+    block leaves ``folder`` as it was (files it held are kept, a folder it did not have is not
+    made) and no staging folder behind (nor does a killed one outlive the next run here)."""
+    import shutil
+
+    from faceanim.errors import STOPS, Interrupted
+
+    folder = Path(folder)
+    parent = folder.parent if str(folder.parent) else Path(".")
+    remove_stale_temps(parent)
+    stage = None
+    try:
+        with signals_held():
+            try:
+                stage = tempfile.mkdtemp(prefix=f".{folder.name[:_MAX_TEMP_STEM]}{_TEMP_MARK}{os.getpid()}-",
+                                         dir=parent)
+            except OSError as exc:
+                raise OutputError(f"cannot write {what} '{folder}': {_reason(exc)}; choose another folder") from None
+            _register(stage)
+        yield Path(stage)
+        if STOPS:
+            raise Interrupted(STOPS[0])
+        with signals_held():
+            try:
+                folder.mkdir(exist_ok=True)
+                for name in sorted(os.listdir(stage)):
+                    os.replace(os.path.join(stage, name), folder / name)
+            except OSError as exc:
+                raise OutputError(f"cannot write {what} '{folder}': {_reason(exc)}") from None
+    finally:
+        if stage is not None:
+            shutil.rmtree(stage, ignore_errors=True)
+            _unregister(stage)
 
 
 def check_input_file(path: str | os.PathLike, what: str, give: str) -> Path:
