@@ -281,3 +281,21 @@ def test_demo_stopped_anywhere_leaves_its_folder_as_it_was(tmp_path):
     if p.returncode == 128 + signal.SIGTERM:
         assert not fresh.exists()
     assert leftovers(tmp_path) == []
+
+
+def test_a_motion_database_that_does_not_fit_is_one_line(tmp_path):
+    """numpy's zip writer on a full disk left a ZipFile whose clean-up printed 'Exception ignored ...'
+    after the error line."""
+    small = tmp_path / "small"
+    small.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", str(small)], capture_output=True).returncode:
+        pytest.skip("cannot mount a small tmpfs here (needs root)")
+    try:
+        (small / "filler").write_bytes(bytes(190_000))
+        t = take(tmp_path / "take.csv", 20.0)
+        r = _faceanim("mocap", "build", t, "-o", small / "db.npz")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert "cannot write motion database" in r.stderr and "No space left on device" in r.stderr
+        assert sorted(p.name for p in small.iterdir()) == ["filler"]
+    finally:
+        subprocess.run(["umount", str(small)], capture_output=True)

@@ -383,17 +383,17 @@ class MotionDatabase:
         return d.reshape(len(d), -1) @ self.bases.reshape(self.n_bases, -1).T
 
     def save(self, path) -> None:
-        from faceanim.io.files import atomic_output
+        from faceanim.io.files import atomic_output, npz_bytes
 
         with atomic_output(path, "motion database") as tmp, open(tmp, "wb") as fh:
-            np.savez_compressed(
-                fh, format=np.array(DATABASE_FORMAT), fps=np.array(self.fps),
+            fh.write(npz_bytes(
+                format=np.array(DATABASE_FORMAT), fps=np.array(self.fps),
                 control_names=np.array(self.control_names), marker_vertices=self.marker_vertices,
                 rest=self.rest, motion=(self.markers - self.rest).astype(np.float16), controls=self.controls,
                 raw=self.raw, neutral=np.array(self.neutral), take_starts=self.take_starts,
                 take_names=np.array(self.take_names), rotation_error=self.rotation_error, bases=self.bases,
                 weights=self.weights.astype(np.float32), curve_names=np.array(self.curve_names),
-                basis_curves=self.basis_curves)
+                basis_curves=self.basis_curves))
 
 
 POSE_METHODS = ("stable", "factorisation")

@@ -194,12 +194,12 @@ class AverageFace:
         return Mesh(v, tris, uv=uv, face_uv=tris.copy(), name="average-face")
 
     def save(self, path) -> None:
-        from faceanim.io.files import atomic_output
+        from faceanim.io.files import atomic_output, npz_bytes
 
         with atomic_output(path) as tmp, open(tmp, "wb") as fh:
-            np.savez_compressed(fh, x=self.x.astype(np.float32), y=self.y.astype(np.float32),
-                                depth=self.depth.astype(np.float32), landmarks=self.landmarks,
-                                sources=np.array(self.sources))
+            fh.write(npz_bytes(x=self.x.astype(np.float32), y=self.y.astype(np.float32),
+                               depth=self.depth.astype(np.float32), landmarks=self.landmarks,
+                               sources=np.array(self.sources)))
 
     @classmethod
     def load(cls, path) -> AverageFace:

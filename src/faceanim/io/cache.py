@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from faceanim.io.files import npz_bytes
+
 log = logging.getLogger(__name__)
 
 KEEP = 8  # entries kept per kind
@@ -96,7 +98,9 @@ def _keep(path: Path, arrays: dict[str, np.ndarray], notes: dict) -> None:
         payload = {}
         for k, a in enumerate(arrays.values()):
             payload.update(_pack(np.asarray(a), f"a{k}"))
-        np.savez(tmp, __names__=json.dumps(list(arrays)), __notes__=json.dumps(notes), **payload)
+        blob = npz_bytes(False, __names__=json.dumps(list(arrays)), __notes__=json.dumps(notes), **payload)
+        with open(tmp, "wb") as fh:
+            fh.write(blob)
         os.replace(tmp, path)
         entries = sorted(path.parent.glob("*.npz"), key=lambda p: p.stat().st_mtime, reverse=True)
         for old in entries[KEEP:]:

@@ -332,6 +332,19 @@ def atomic_folder(folder: str | os.PathLike, what: str = "output folder") -> Ite
             _unregister(stage)
 
 
+def npz_bytes(compressed: bool = True, **arrays) -> bytes:
+    """An ``.npz`` archive of ``arrays`` made in memory. Writing it to the file afterwards keeps a
+    failed write (a full disk) one clean error: numpy's zip writer on a file that fails leaves a
+    ZipFile whose clean-up reports 'Exception ignored ... seek of closed file' on the terminal."""
+    import io
+
+    import numpy as np
+
+    buf = io.BytesIO()
+    (np.savez_compressed if compressed else np.savez)(buf, **arrays)
+    return buf.getvalue()
+
+
 def check_input_file(path: str | os.PathLike, what: str, give: str) -> Path:
     """The path of an input file that can be read: refused (one :class:`InputFileError` line, the
     path shown by its printable end) when empty, missing, a folder or not a regular file (a device,
