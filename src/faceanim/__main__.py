@@ -1,5 +1,3 @@
-import sys
+from faceanim.cli import run
 
-from faceanim.cli import main
-
-sys.exit(main())
+run()

@@ -121,19 +121,30 @@ def _stop_signals() -> dict:
     return previous
 
 
-def main(argv: list[str] | None = None) -> int:
-    from faceanim.errors import STOPS
+def main(argv: list[str] | None = None, final: bool = False) -> int:
+    """Run one command; its exit code. ``final``: the process ends with it (the ``faceanim``
+    program): a stop that comes once the command is over is ignored, not a silent death by signal
+    on the way out (its output is whole by then)."""
+    import signal
+
+    from faceanim.errors import STOPS, Interrupted
 
     STOPS.clear()
     previous = _stop_signals()
     try:
-        return _main(argv)
-    finally:
-        import signal
+        try:
+            return _main(argv)
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, signal.SIG_IGN if final else handler)
+            STOPS.clear()  # this command's stops are said; a caller in the same process goes on
+    except Interrupted as exc:  # it came as the command returned, before its handlers were put back
+        return _interrupted(exc.signum)
 
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        STOPS.clear()  # this command's stops are said; a caller in the same process goes on
+
+def run() -> None:
+    """The ``faceanim`` program: :func:`main` on the command line, then exit with its code."""
+    sys.exit(main(final=True))
 
 
 def _main(argv: list[str] | None = None) -> int:
