@@ -553,3 +553,22 @@ def test_rig_of_a_pipe_named_glb_is_refused_at_once(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is not a regular file" in r.stderr, r.stderr
     assert not (tmp_path / "o.glb").exists()
+
+
+# ------------------------------------------- the second sweep: empty values, options that go together
+@pytest.mark.parametrize("argv, phrase", [
+    (["au", "--face", "", "--au", "12", "-o", "{d}/x.obj"], "--face is empty"),
+    (["demo", "--out", "", "--size", "64", "--quiet"], "--out is empty"),
+    (["demo", "--out=", "--size", "64", "--quiet"], "--out is empty"),
+    (["au", "--emotion", " ", "-o", "{d}/x.obj"], "--emotion is empty"),
+    (["say", "", "-o", "{d}/x.csv"], "an argument is empty"),
+    (["say", "hello", "--transcript", "{d}/words.txt", "-o", "{d}/x.csv"], "--transcript names the words of an --audio"),
+])
+def test_an_empty_value_or_a_transcript_without_audio_is_refused(argv, phrase, tmp_path, capsys, monkeypatch):
+    """Empty values meant the default face or the current folder (demo --out '' wrote fifteen files
+    into it); a transcript without a recording was dropped without a word."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "words.txt").write_text("hello")
+    rc, _, err = run([a.replace("{d}", str(tmp_path)) for a in argv], capsys)
+    assert rc == 2 and err.count("\n") == 1 and phrase in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["words.txt"]

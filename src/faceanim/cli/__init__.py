@@ -160,6 +160,7 @@ def _main(argv: list[str] | None = None) -> int:
                                 getattr(args, "fap_command", None), getattr(args, "mocap_command", None),
                                 getattr(args, "arkit_command", None)) if x)
     try:
+        _no_empty_values(argv)
         outputs_are_not_inputs(args)
         args.func(args)
     except FaceAnimError as exc:
@@ -187,6 +188,21 @@ def _main(argv: list[str] | None = None) -> int:
     if STOPS:  # a stop swallowed on its way up (printed by a finaliser): the command did not finish
         return _interrupted(STOPS[0])
     return 0
+
+
+def _no_empty_values(argv: list[str]) -> None:
+    """An empty value (``--face ''``, ``-o ''``, ``--out=``) is refused: taken as given it meant the
+    default face or the current folder, never what the user typed."""
+    from faceanim.cli.common import CommandError
+
+    for k, token in enumerate(argv):
+        if token.startswith("--") and token.endswith("=") and len(token) > 3:
+            raise CommandError(f"{token[:-1]} is empty; give it a value or leave it out")
+        if token == "" or not token.strip():
+            before = argv[k - 1] if k and argv[k - 1].startswith("-") else None
+            if before:
+                raise CommandError(f"{before} is empty; give it a value or leave it out")
+            raise CommandError("an argument is empty (''); give a value or leave it out")
 
 
 def _interrupted(signum: int) -> int:

@@ -129,6 +129,9 @@ def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
 def _cmd_say(args) -> None:
     if (args.text is None) == (args.audio is None):
         raise CommandError("give the text to say, or --audio clip.wav (with --transcript clip.txt if you have it)")
+    if args.transcript and args.audio is None:
+        raise CommandError("--transcript names the words of an --audio recording; give --audio too, or say the text "
+                           "itself without --transcript")
     voice = None
     if args.text is not None:
         from faceanim.drivers.speech import check_text, check_voice
