@@ -319,10 +319,14 @@ def atomic_folder(folder: str | os.PathLike, what: str = "output folder") -> Ite
         yield Path(stage)
         if STOPS:
             raise Interrupted(STOPS[0])
+        names = sorted(os.listdir(stage))
+        for name in names:  # checked before any is moved: a refusal half-way would leave a mix
+            if (folder / name).is_dir() and not (folder / name).is_symlink():
+                raise OutputError(f"'{folder / name}' is a folder, where faceanim writes the file {name}; move it away")
         with signals_held():
             try:
                 folder.mkdir(exist_ok=True)
-                for name in sorted(os.listdir(stage)):
+                for name in names:
                     os.replace(os.path.join(stage, name), folder / name)
             except OSError as exc:
                 raise OutputError(f"cannot write {what} '{folder}': {_reason(exc)}") from None
