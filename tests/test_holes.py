@@ -1,5 +1,7 @@
 """Issue 23: the holes an outside sweep found, each a regression test that failed before its fix."""
 
+from contextlib import contextmanager
+
 import numpy as np
 import pytest
 from test_arkit_csv import HEADER, row, write_take
@@ -80,10 +82,32 @@ def _animated_glb(folder, sound_name="voice.wav"):
                       weights=np.array([[0.0], [1.0]]), extras={"audio": sound_name})
 
 
-def test_view_never_serves_a_file_a_sound_link_points_at(tmp_path):
+@contextmanager
+def _serving(viewer):
+    """``viewer`` served on a free port in a thread; yields get(path) -> (status, body)."""
     import http.client
     import threading
 
+    from faceanim.viewer import server as srv
+
+    server = srv.ViewerServer(viewer, 0)
+    threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True).start()
+    port = server.server_address[1]
+
+    def get(path):
+        c = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+        c.request("GET", path, headers={"Host": f"127.0.0.1:{port}"})
+        r = c.getresponse()
+        return r.status, r.read()
+
+    try:
+        yield get
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def test_view_never_serves_a_file_a_sound_link_points_at(tmp_path):
     from faceanim.io.audio import write_wav
     from faceanim.viewer import server as srv
 
@@ -98,17 +122,7 @@ def test_view_never_serves_a_file_a_sound_link_points_at(tmp_path):
     write_wav(tmp_path / "voice.wav", np.zeros(1600), 16000)
     model = srv.check_model(glb)
     assert model.sound == tmp_path / "voice.wav"
-    server = srv.ViewerServer(srv.Viewer(model), 0)
-    threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True).start()
-    try:
-        port = server.server_address[1]
-
-        def get(path):
-            c = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
-            c.request("GET", path, headers={"Host": f"127.0.0.1:{port}"})
-            r = c.getresponse()
-            return r.status, r.read()
-
+    with _serving(srv.Viewer(model)) as get:
         status, body = get("/sound")
         assert status == 200 and body[:4] == b"RIFF"
         # swapped for a link while the viewer runs: refused at the request, not only at start
@@ -116,17 +130,12 @@ def test_view_never_serves_a_file_a_sound_link_points_at(tmp_path):
         (tmp_path / "voice.wav").symlink_to(secret)
         status, body = get("/sound")
         assert status == 404 and b"private" not in body
-    finally:
-        server.shutdown()
-        server.server_close()
 
 
 def test_view_never_serves_a_link_put_in_place_of_its_model_or_photo(tmp_path):
     """The model and photo given at start (through a link if the user gave one) are served; a link
     swapped in for either while the viewer runs is refused (the sweep read /etc/passwd so)."""
-    import http.client
     import shutil
-    import threading
 
     from PIL import Image
 
@@ -139,18 +148,7 @@ def test_view_never_serves_a_link_put_in_place_of_its_model_or_photo(tmp_path):
     glb.symlink_to(real)  # a link given by the user is followed once, at start
     photo = tmp_path / "p.png"
     Image.fromarray(np.full((64, 64, 3), 128, np.uint8)).save(photo)
-    viewer = srv.Viewer(srv.check_model(glb), [srv.Photo(photo, 64, 64)])
-    server = srv.ViewerServer(viewer, 0)
-    threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True).start()
-    try:
-        port = server.server_address[1]
-
-        def get(path):
-            c = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
-            c.request("GET", path, headers={"Host": f"127.0.0.1:{port}"})
-            r = c.getresponse()
-            return r.status, r.read()
-
+    with _serving(srv.Viewer(srv.check_model(glb), [srv.Photo(photo, 64, 64)])) as get:
         assert get("/model") == (200, real.read_bytes())
         assert get("/photo/0") == (200, photo.read_bytes())
         kept = tmp_path / "kept.glb"
@@ -166,9 +164,6 @@ def test_view_never_serves_a_link_put_in_place_of_its_model_or_photo(tmp_path):
         real.unlink()
         shutil.move(kept, real)  # a model exported again (a regular file) is served as it is now
         assert get("/model") == (200, real.read_bytes())
-    finally:
-        server.shutdown()
-        server.server_close()
 
 
 def test_view_outlives_a_flood_of_idle_slow_and_oversized_clients_and_stops_at_once(tmp_path):
