@@ -331,7 +331,7 @@ MASK1 = "0 0 1 " + "0 " * 65
     ("2.1 x 25 1\n" + MASK1 + "\n0 1e308\n", "bad.fap:3: value '1e308' is beyond +-1e+07 FAPU units"),
     ("2.1 x 25 1\n" + MASK1 + "\n1e300 5\n", "bad.fap:3: the frame number '1e300' must be a whole number"),
     ("2.1 x 25 1\n" + MASK1 + "\n0 5\x00\n", "bad.fap:3: NUL byte"),
-    ("2.1 x 25 1\n" + MASK1 + "\n0 " + "9" * 5000 + "\n", "bad.fap:3: value of 5000 characters is not a finite"),
+    ("2.1 x 25 1\n" + MASK1 + "\n0 " + "9" * 5000 + "\n", "bad.fap:3: value is not a finite"),
 ])
 def test_bad_fap_text(text, message):
     from faceanim.io.fapfile import parse_fap

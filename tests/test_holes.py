@@ -556,7 +556,7 @@ def test_rig_of_a_pipe_named_glb_is_refused_at_once(tmp_path):
     (["demo", "--out", "", "--size", "64", "--quiet"], "--out is empty"),
     (["demo", "--out=", "--size", "64", "--quiet"], "--out is empty"),
     (["au", "--emotion", " ", "-o", "{d}/x.obj"], "--emotion is empty"),
-    (["say", "", "-o", "{d}/x.csv"], "an argument is empty"),
+    (["say", "", "-o", "{d}/x.csv"], "the text to say is empty"),
     (["say", "hello", "--transcript", "{d}/words.txt", "-o", "{d}/x.csv"], "--transcript names the words of an --audio"),
 ])
 def test_an_empty_value_or_a_transcript_without_audio_is_refused(argv, phrase, tmp_path, capsys, monkeypatch):

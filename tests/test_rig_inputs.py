@@ -192,7 +192,7 @@ def test_missing_landmark_file(tmp_path, capsys):
 
 # ------------------------------------------------------------------------- --set, --title, --author
 @pytest.mark.parametrize("args, message", [
-    (["--set="], "--set has an empty item"),
+    (["--set="], "--set is empty"),
     (["--set", ",,,"], "--set has an empty item"),
     (["--set", "arkit,"], "--set has an empty item"),
     (["--set", "arkit,,visemes"], "--set has an empty item"),

@@ -191,18 +191,16 @@ def _main(argv: list[str] | None = None) -> int:
 
 
 def _no_empty_values(argv: list[str]) -> None:
-    """An empty value (``--face ''``, ``-o ''``, ``--out=``) is refused: taken as given it meant the
-    default face or the current folder, never what the user typed."""
+    """An option given an empty value (``--face ''``, ``--out ' '``, ``--out=``) is refused: taken as
+    given it meant the default face or the current folder, never what the user typed. (An empty
+    positional argument, a path or a text, is refused by its command, which names what it is.)"""
     from faceanim.cli.common import CommandError
 
     for k, token in enumerate(argv):
         if token.startswith("--") and token.endswith("=") and len(token) > 3:
             raise CommandError(f"{token[:-1]} is empty; give it a value or leave it out")
-        if token == "" or not token.strip():
-            before = argv[k - 1] if k and argv[k - 1].startswith("-") else None
-            if before:
-                raise CommandError(f"{before} is empty; give it a value or leave it out")
-            raise CommandError("an argument is empty (''); give a value or leave it out")
+        if not token.strip() and k and argv[k - 1].startswith("-") and len(argv[k - 1]) > 1:
+            raise CommandError(f"{argv[k - 1]} is empty; give it a value or leave it out")
 
 
 def _interrupted(signum: int) -> int:
