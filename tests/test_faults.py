@@ -45,12 +45,18 @@ def stop(argv, out: Path, signum: int, delay: float, tmp: Path) -> tuple[int, st
     """Run faceanim, send ``signum`` after ``delay`` seconds; (exit code, stderr)."""
     private = tmp / f"tmp-{signum}-{delay:.2f}"
     private.mkdir()
-    env = dict(os.environ, TMPDIR=str(private))
+    env = dict(os.environ, TMPDIR=str(private), PYTHONFAULTHANDLER="1")
     p = subprocess.Popen([sys.executable, "-m", "faceanim", *map(str, argv), "-o", str(out)], env=env,
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=as_from_a_terminal)
     time.sleep(delay)
     p.send_signal(signum)
-    _, err = p.communicate(timeout=120)
+    try:
+        _, err = p.communicate(timeout=120)
+    except subprocess.TimeoutExpired:  # a hang: where every thread is (faulthandler on SIGABRT)
+        p.send_signal(signal.SIGABRT)
+        _, err = p.communicate(timeout=30)
+        pytest.fail(f"{signal.Signals(signum).name} at {delay:.2f} s: no exit within 120 s; its threads:\n"
+                    + err.decode(errors="replace")[-6000:])
     assert list(private.iterdir()) == [], f"temporary files left in TMPDIR: {list(private.iterdir())}"
     private.rmdir()
     return p.returncode, err.decode(errors="replace")
