@@ -305,3 +305,44 @@ def test_a_motion_database_that_does_not_fit_is_one_line(tmp_path):
         assert sorted(p.name for p in small.iterdir()) == ["filler"]
     finally:
         subprocess.run(["umount", str(small)], capture_output=True)
+
+
+def test_a_stop_that_leaves_the_frame_queue_locked_does_not_hang_the_video(tmp_path, monkeypatch):
+    """A stop raised inside queue.put can leave the queue's lock held (CPython runs the signal
+    handler between the lock's acquire and the with block): write_video then hung for ever in its
+    clean-up, ffmpeg beside it (found by the suite under load). Mimicked here: the third frame's put
+    takes the lock and raises the stop."""
+    import threading
+
+    from faceanim.errors import Interrupted
+    from faceanim.render import video
+
+    real_put = video._Pump.put
+    puts = []
+    spawned = []
+
+    def put(self, frame):
+        puts.append(1)
+        if len(puts) == 3:
+            spawned.append(self.writer.gi_frame.f_locals.get("p") if self.writer.gi_frame else None)
+            self.queue.mutex.acquire()
+            raise Interrupted(signal.SIGTERM)
+        real_put(self, frame)
+
+    monkeypatch.setattr(video._Pump, "put", put)
+    out = tmp_path / "x.mp4"
+    result = []
+
+    def write():
+        try:
+            video.write_video(out, (np.zeros((64, 64, 3), np.uint8) for _ in range(50)), fps=25)
+        except BaseException as exc:  # noqa: BLE001 -- handed to the test's thread
+            result.append(exc)
+
+    t = threading.Thread(target=write, daemon=True)
+    t.start()
+    t.join(timeout=60)
+    assert not t.is_alive(), "write_video hung after a stop inside the frame queue"
+    assert len(result) == 1 and isinstance(result[0], Interrupted)
+    assert not out.exists() and leftovers(tmp_path) == []
+    assert spawned and spawned[0] is not None and spawned[0].poll() is not None  # ffmpeg is gone

@@ -134,17 +134,21 @@ def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=Non
         finally:
             stopped = sys.exc_info()[1]
             interrupted = stopped is not None and not isinstance(stopped, Exception)  # Ctrl-C, SIGTERM, SIGHUP
-            if pump is not None:
+            if pump is not None and not interrupted:
                 pump.stop()
             if writer is not None and interrupted:
                 # ffmpeg is killed, not left to finish a file about to be removed (it would complain
                 # about the vanished file on the terminal), and waited for: a file it was making as it
-                # died could appear after ours is removed
-                with contextlib.suppress(BaseException):
-                    writer.throw(KeyboardInterrupt)
-                if ffmpeg is not None and hasattr(ffmpeg, "wait"):
+                # died could appear after ours is removed. The pump is not stopped through its queue:
+                # a stop raised inside queue.put can leave the queue's lock held (a deadlock seen
+                # under load); its thread is a daemon, blocked or failing on the dead pipe
+                if ffmpeg is not None and hasattr(ffmpeg, "kill"):
                     with contextlib.suppress(Exception):
+                        ffmpeg.kill()
                         ffmpeg.wait(timeout=10)
+                elif pump is None or not pump.thread.is_alive():
+                    with contextlib.suppress(BaseException):
+                        writer.throw(KeyboardInterrupt)
             elif writer is not None:
                 try:
                     writer.close()
