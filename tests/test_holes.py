@@ -567,3 +567,19 @@ def test_an_empty_value_or_a_transcript_without_audio_is_refused(argv, phrase, t
     rc, _, err = run([a.replace("{d}", str(tmp_path)) for a in argv], capsys)
     assert rc == 2 and err.count("\n") == 1 and phrase in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["words.txt"]
+
+
+def test_a_job_file_that_is_a_pipe_or_a_device_is_refused_at_once(tmp_path):
+    """A FIFO named job.yaml hung the batch; a link to /dev/zero read until the machine ran out of
+    memory (the third sweep)."""
+    import os
+    import subprocess
+    import sys
+
+    os.mkfifo(tmp_path / "pipe.yaml")
+    (tmp_path / "zero.yaml").symlink_to("/dev/zero")
+    for job in ("pipe.yaml", "zero.yaml"):
+        r = subprocess.run([sys.executable, "-m", "faceanim", "batch", str(tmp_path / job), "-o", str(tmp_path / "out"),
+                            "--workers", "1"], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is not a regular file" in r.stderr, r.stderr
+    assert not (tmp_path / "out").exists()

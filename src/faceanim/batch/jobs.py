@@ -136,10 +136,16 @@ def read_job(path) -> Job:
     try:
         if path.is_dir():
             raise JobError(f"job file '{name}' is a folder; give a .yaml or .json file")
+        if path.exists() and not path.is_file():  # a pipe or a device: it could never end
+            raise JobError(f"job file '{name}' is not a regular file (a device, pipe or socket); give a .yaml or "
+                           ".json file")
         size = path.stat().st_size
         if size > MAX_JOB_BYTES:
             raise JobError(f"job file '{name}' is {size} bytes; a job file is a few lines (at most 1 MiB)")
-        raw = path.read_bytes()
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_JOB_BYTES + 1)  # a file that grows while read stops at the limit too
+        if len(raw) > MAX_JOB_BYTES:
+            raise JobError(f"job file '{name}' is larger than 1 MiB; a job file is a few lines")
     except FileNotFoundError:
         raise JobError(f"job file '{name}' does not exist; give the path of a .yaml or .json job file") from None
     except OSError:
