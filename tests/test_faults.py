@@ -346,3 +346,39 @@ def test_a_stop_that_leaves_the_frame_queue_locked_does_not_hang_the_video(tmp_p
     assert len(result) == 1 and isinstance(result[0], Interrupted)
     assert not out.exists() and leftovers(tmp_path) == []
     assert spawned and spawned[0] is not None and spawned[0].poll() is not None  # ffmpeg is gone
+
+
+@pytest.mark.skipif(not __import__("shutil").which("espeak-ng"), reason="espeak-ng is not installed")
+def test_a_stop_as_the_command_ends_is_one_line_never_a_finaliser_traceback(tmp_path):
+    """A stop sent the moment 'wrote' is printed struck inside tqdm's __del__ as the command
+    returned: Python printed 'Exception ignored in ... Traceback ... Interrupted' (12 of 12 in the
+    third sweep). Now: exit 0 (it had ended) or 128+n with the one line, the output whole."""
+    for signum in SIGNALS:
+        out = tmp_path / f"out-{signum}.glb"
+        p = subprocess.Popen([sys.executable, "-m", "faceanim", "say", "hello there", "-o", str(out)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=as_from_a_terminal,
+                             env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        for line in p.stdout:
+            if b"wrote" in line:
+                p.send_signal(signum)
+                break
+        _, err = p.communicate(timeout=120)
+        err = err.decode(errors="replace")
+        assert "Traceback" not in err and "Exception ignored" not in err, err
+        assert p.returncode in (0, 128 + signum), (p.returncode, err)
+        assert err.count("\n") == (p.returncode != 0), err
+        assert out.is_file() and out.stat().st_size > 1000
+
+
+def test_the_unraisable_hook_hides_a_stop_and_nothing_else():
+    from types import SimpleNamespace
+
+    from faceanim.cli import _quiet_stops
+    from faceanim.errors import Interrupted
+
+    seen = []
+    hook = _quiet_stops(seen.append)
+    hook(SimpleNamespace(exc_value=Interrupted(signal.SIGHUP)))
+    other = SimpleNamespace(exc_value=ValueError("a real bug in a finaliser"))
+    hook(other)
+    assert seen == [other]

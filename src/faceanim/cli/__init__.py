@@ -131,6 +131,8 @@ def main(argv: list[str] | None = None, final: bool = False) -> int:
 
     STOPS.clear()
     previous = _stop_signals()
+    unraisable = sys.unraisablehook
+    sys.unraisablehook = _quiet_stops(unraisable)
     try:
         try:
             return _main(argv)
@@ -138,8 +140,24 @@ def main(argv: list[str] | None = None, final: bool = False) -> int:
             for sig, handler in previous.items():
                 signal.signal(sig, signal.SIG_IGN if final else handler)
             STOPS.clear()  # this command's stops are said; a caller in the same process goes on
+            if not final:
+                sys.unraisablehook = unraisable
     except Interrupted as exc:  # it came as the command returned, before its handlers were put back
         return _interrupted(exc.signum)
+
+
+def _quiet_stops(previous):
+    """An unraisable-exception hook that says nothing of a stop: the stop handler raises where the
+    program is, also inside a finaliser (tqdm's ``__del__``), where Python can only print it with a
+    traceback; the stop is recorded (``errors.STOPS``) and said once, in one line, by the command."""
+    from faceanim.errors import Interrupted
+
+    def hook(unraisable) -> None:
+        if isinstance(unraisable.exc_value, Interrupted):
+            return
+        previous(unraisable)
+
+    return hook
 
 
 def run() -> None:
