@@ -583,3 +583,22 @@ def test_a_job_file_that_is_a_pipe_or_a_device_is_refused_at_once(tmp_path):
                             "--workers", "1"], capture_output=True, text=True, timeout=120)
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and "is not a regular file" in r.stderr, r.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_view_refuses_a_damaged_glb_and_still_shows_a_quantised_one(tmp_path, capsys):
+    """view checked only a GLB's container: six damaged files every other command refuses were
+    served (the third sweep). A valid file that faceanim does not edit (--compact's quantised
+    positions) is still the browser's to show."""
+    from faceanim.face.default import default_face
+    from faceanim.io.meshio import save_mesh
+    from faceanim.viewer.server import ViewerError, check_model
+
+    src = tmp_path / "src.glb"
+    save_mesh(default_face(), src)
+    bad = _patched_glb(src, tmp_path / "bad.glb")
+    with pytest.raises(ViewerError, match="is damaged"):
+        check_model(bad)
+    rc, _, err = run(["au", "--au", "12", "--compact", "-o", tmp_path / "compact.glb"], capsys)
+    assert rc == 0, err
+    assert check_model(tmp_path / "compact.glb").kind == "glb"
+    assert check_model(src).kind == "glb"

@@ -86,6 +86,11 @@ _MODES = {0: "points", 1: "lines", 2: "line loops", 3: "line strips", 4: "triang
           6: "triangle fans"}
 
 
+class DamagedGltf(MeshError):
+    """The file breaks glTF's own rules (indices past their data, NaN positions, ...): no tool
+    should show it, unlike a valid file that uses what faceanim does not edit (quantisation)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class MeshInfo:
     """One glTF mesh of a :class:`Scene`, as :meth:`Scene.meshes` lists it.
@@ -245,7 +250,7 @@ class Scene:
 
     # ------------------------------------------------------------------ structure
     def _bad(self, what: str):
-        raise MeshError(f"'{self._label}' is not a valid glTF file ({what}); export it again")
+        raise DamagedGltf(f"'{self._label}' is not a valid glTF file ({what}); export it again")
 
     def _mesh_name(self, mi: int) -> str:
         name = self._json["meshes"][mi].get("name")
@@ -579,7 +584,7 @@ def _check_document(gltf: dict, bin_len: int, label: str) -> None:
     range, accessors past their buffer views, views past the binary chunk, outside data, compression."""
 
     def bad(what):
-        raise MeshError(f"'{label}' is not a valid glTF file ({what}); export it again")
+        raise DamagedGltf(f"'{label}' is not a valid glTF file ({what}); export it again")
 
     asset = gltf.get("asset")
     if not isinstance(asset, dict) or not isinstance(asset.get("version"), str) \

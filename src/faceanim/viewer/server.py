@@ -131,8 +131,26 @@ def check_model(path: str | os.PathLike) -> Model:
     if p.suffix.lower() == ".vrm" and not vrm:
         raise ViewerError(f"model '{name}' has no VRM extension (VRMC_vrm or VRM); give a VRM file, or a "
                           "glTF binary named .glb")
+    _check_data(p, name)
     extras = scene_extras(doc)
     return Model(p, "vrm" if vrm else "glb", doc, _sound(p, extras), extras)
+
+
+def _check_data(path: Path, name: str) -> None:
+    """Refuse a model whose data break glTF's rules (accessors past their buffers, triangles naming
+    missing vertices, NaN positions), as every other command does; a valid file that uses what
+    faceanim does not edit (quantised or compressed meshes) is the browser's to show."""
+    from faceanim.errors import MeshError
+    from faceanim.io.scene import DamagedGltf, read_scene
+
+    try:
+        scene = read_scene(path)
+        for k in range(len(scene.meshes())):
+            scene.mesh_geometry(k)
+    except DamagedGltf:
+        raise ViewerError(f"model '{name}' is damaged (its data break the glTF rules); export it again") from None
+    except MeshError:
+        return
 
 
 def _sound(model: Path, extras: dict) -> Path | None:
