@@ -196,6 +196,7 @@ def test_missing_landmark_file(tmp_path, capsys):
     (["--set", ",,,"], "--set has an empty item"),
     (["--set", "arkit,"], "--set has an empty item"),
     (["--set", "arkit,,visemes"], "--set has an empty item"),
+    (["--set", "arkit,ARKIT"], "rig set 'arkit' is given twice"),
     (["--set", "Wings,visemes"], "unknown rig set 'wings'"),
     (["--title", "x" * 10_000], "--title takes 1 to 200 printable characters"),
     (["--title", " "], "--title takes 1 to 200 printable characters"),

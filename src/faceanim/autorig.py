@@ -78,6 +78,9 @@ def parse_sets(text: str) -> list[str]:
     if "" in asked:
         raise FaceAnimError(f"--set has an empty item; give one or more of: {', '.join(RIG_SETS)} (or all), "
                             "separated by single commas")
+    twice = [s for k, s in enumerate(asked) if s in asked[:k]]
+    if twice:
+        raise FaceAnimError(f"rig set '{shown(twice[0])}' is given twice in --set; give each once")
     unknown = [s for s in asked if s not in RIG_SETS and s != "all"]
     if unknown:
         raise FaceAnimError(f"unknown rig set '{shown(unknown[0])}'; choose from: {', '.join(RIG_SETS)} (or all)")
