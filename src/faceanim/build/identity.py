@@ -33,9 +33,6 @@ SAME_PERSON = 0.6
 # beyond this turn from the front photo (degrees of yaw) a descriptor is not compared: the network
 # was trained on faces seen from the front to about three-quarters
 MAX_TURN = 50.0
-# the face's box around the landmarks, grown by this fraction a side (dlib's detector boxes are
-# about the landmarks' box; the shape predictor was trained on them)
-BOX_MARGIN = 0.0
 
 
 @lru_cache(maxsize=1)
@@ -56,9 +53,10 @@ def face_descriptor(image: np.ndarray, points: np.ndarray) -> np.ndarray:
     ``image`` ((H, W, 3) uint8 RGB)."""
     dlib, predictor, network = _models()
     image = np.ascontiguousarray(image[..., :3], dtype=np.uint8)
+    # the landmarks' box: about the box of dlib's own detector, which the shape predictor was trained
+    # on (the test compares the two descriptors)
     (x0, y0), (x1, y1) = points.min(axis=0), points.max(axis=0)
-    grow = BOX_MARGIN * max(x1 - x0, y1 - y0)
-    box = dlib.rectangle(int(round(x0 - grow)), int(round(y0 - grow)), int(round(x1 + grow)), int(round(y1 + grow)))
+    box = dlib.rectangle(int(round(x0)), int(round(y0)), int(round(x1)), int(round(y1)))
     shape = predictor(image, box)
     return np.asarray(network.compute_face_descriptor(image, shape, 1), dtype=np.float64)
 
