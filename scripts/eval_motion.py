@@ -56,25 +56,20 @@ class Measurer:
     """MediaPipe's face mesh in video mode over a stream of frames -> the measures per frame."""
 
     def __init__(self):
-        import mediapipe as mp
-
         from faceanim.drivers.video.tracking import rigid_landmarks
         from faceanim.face.generic_head import generic_head
+        from faceanim.face.mediapipe import FaceMesh
 
-        self._fm = mp.solutions.face_mesh.FaceMesh(static_image_mode=False, max_num_faces=1,
-                                                   refine_landmarks=True, min_detection_confidence=0.5,
-                                                   min_tracking_confidence=0.5)
+        self._fm = FaceMesh(video=True, confidence=0.5, what="the motion judge")
         self._ref = generic_head().landmarks()
         self._rigid = rigid_landmarks()
 
     def __call__(self, frame: np.ndarray) -> np.ndarray:
         from faceanim.face.frame import similarity
 
-        h, w = frame.shape[:2]
-        res = self._fm.process(np.ascontiguousarray(frame))
-        if not res.multi_face_landmarks:
+        lm = self._fm(frame)
+        if lm is None:
             return np.full(len(MEASURES), np.nan)
-        lm = np.array([[p.x * w, p.y * h, p.z * w] for p in res.multi_face_landmarks[0].landmark])
         q = lm * np.array([1.0, -1.0, -1.0])
         s, r, t = similarity(self._ref[self._rigid], q[self._rigid])
         f = ((q - t) @ r) / s  # fronto-parallel, generic head units (x the face's left, y up)

@@ -2,7 +2,7 @@
 
 Landmark detectors fail on a profile; its silhouette holds the face's midline instead (the seed
 paper, section 2.1, takes the profile points of the FDP set from the side photo). The person is
-segmented with the selfie segmentation models inside the ``mediapipe==0.10.21`` wheel, the
+segmented with the selfie segmentation models MediaPipe published (shipped in ``assets/mediapipe``), the
 silhouette's edge refined with GrabCut, and the profile curve (the silhouette's facing edge,
 from the top of the head down the face to the neck) searched for the points a profile shows,
 named by their MediaPipe face mesh indices on the midline, as the rest of the pipeline names
@@ -622,10 +622,8 @@ def _face_detection(img: np.ndarray) -> dict | None:
             found = detect(small)
         if found:
             best = found[0]
-            h, w = small.shape[:2]
-            kp = np.array([[k.x * w, k.y * h] for k in best.location_data.relative_keypoints]) / s
-            return {"nose": kp[2], "ears": 0.5 * (kp[4] + kp[5]), "score": float(best.score[0]),
-                    "width": best.location_data.relative_bounding_box.width * w / s}
+            kp = best.keypoints / s
+            return {"nose": kp[2], "ears": 0.5 * (kp[4] + kp[5]), "score": best.score, "width": best.width / s}
     return None
 
 

@@ -2,7 +2,7 @@
 
 Detection (seed paper section 2.2): render the mesh from the front with a parallel camera
 (textured, or shaded in a skin colour when it has no texture), run the MediaPipe face mesh on
-the render (model inside the ``mediapipe==0.10.21`` wheel, 478 points with the irises), and
+the render (model inside the shipped Face Landmarker, 478 points with the irises), and
 cast a ray from each detected image point onto the surface. Each landmark keeps its MediaPipe
 index, its triangle and barycentric coordinates, so it follows the surface when the mesh
 deforms (:meth:`Landmarks.on`).
