@@ -210,28 +210,75 @@ def write_sheet(path: Path, video: Path, chosen: dict[str, int], renders: dict, 
     iio.imwrite(path, np.vstack([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]))
 
 
-def run_clip(path: Path, face, size: int, sheets: Path | None = None) -> dict:
+def _cached(cache: Path | None, key: str, make):
+    """``make()``, kept as a pickle in ``cache`` under ``key`` (tuning runs re-measure the same clips)."""
+    import pickle
+
+    if cache is None:
+        return make()
+    f = cache / f"{key}.pkl"
+    if f.exists():
+        return pickle.loads(f.read_bytes())
+    value = make()
+    cache.mkdir(parents=True, exist_ok=True)
+    f.write_bytes(pickle.dumps(value))
+    return value
+
+
+def performance_curves(tracking, tracker: str, settings=None):
+    """The performance of a tracking by ``tracker`` (solve, synthesis, mediapipe)."""
+    from faceanim.perform import default_database, mediapipe_performance, perform, solve_performance
+
+    if tracker == "solve":
+        return solve_performance(tracking, settings)
+    if tracker == "mediapipe":
+        return mediapipe_performance(tracking)
+    return perform(tracking, default_database())
+
+
+def avatar_frames(performance, face, rig_cache: dict):
+    """The avatar's vertices per frame, as ``faceanim arkit play`` (ARKit curves) or ``perform
+    --tracker synthesis`` (the bases' rig) renders them, without the head's turn (the judge takes
+    the pose out)."""
+    from faceanim.export import Animation, face_frames
+    from faceanim.perform import default_database, performance_rig
+
+    if performance.is_arkit:
+        if "shapes" not in rig_cache:
+            from faceanim.rig.arkit import arkit_shapes
+
+            rig_cache["shapes"] = arkit_shapes(face)[0]
+        yield from face_frames(Animation(performance.fps, arkit=performance.weights, face=face,
+                                         shapes=rig_cache["shapes"]), CHUNK)
+        return
+    if "bases" not in rig_cache:
+        rig_cache["bases"] = performance_rig(face, default_database())
+    rig = rig_cache["bases"]
+    for a in range(0, performance.n_frames, CHUNK):
+        yield from rig.evaluate(performance.weights[a:a + CHUNK])
+
+
+def run_clip(path: Path, face, size: int, sheets: Path | None = None, tracker: str = "solve",
+             cache: Path | None = None, settings=None, rig_cache: dict | None = None) -> dict:
     from faceanim.drivers.video.tracking import track_video
-    from faceanim.perform import default_database, perform, performance_rig
 
     t = time.perf_counter()
-    perf_m, fps = measure_video(path)
-    tracking = track_video(path)
-    db = default_database()
-    performance = perform(tracking, db)
-    rig = performance_rig(face, db)
+    perf_m, fps = _cached(cache, f"judge_{path.stem}", lambda: measure_video(path))
+    tracking = _cached(cache, f"tracking_{path.stem}", lambda: track_video(path))
+    performance = performance_curves(tracking, tracker, settings)
+    rig_cache = {} if rig_cache is None else rig_cache
 
     def frames():
-        for a in range(0, performance.n_frames, CHUNK):
-            yield from rig.evaluate(performance.weights[a:a + CHUNK])
+        yield from avatar_frames(performance, face, rig_cache)
 
     chosen = sheet_frames(perf_m) if sheets else {}
     renders = {k: None for k in chosen.values()}
     av_m, neutral = measure_avatar(face, frames(), size, renders)
     if sheets:
-        write_sheet(sheets / f"{path.stem}.png", path, chosen, renders)
+        write_sheet(sheets / f"{path.stem}_{tracker}.png", path, chosen, renders)
     fig = figures(perf_m, av_m, neutral)
     fig["frames"] = len(perf_m)
+    fig["series"] = (perf_m, av_m)
     fig["seconds"] = time.perf_counter() - t
     return fig
 
@@ -251,37 +298,63 @@ def main(argv=None) -> None:
                    "or a head from photos")
     p.add_argument("--sheets", type=Path, help="write a contact sheet per clip into this folder (the video "
                    "beside the avatar at its deepest blink, widest and most rounded mouth, and a still moment)")
+    p.add_argument("--tracker", default="solve", help="solve, synthesis or mediapipe, or several, comma-separated "
+                   "(each on the same clips, the same avatar and the same judge)")
+    p.add_argument("--cache", type=Path, help="keep the judge's measures of each clip and its tracking here")
     args = p.parse_args(argv)
     face = Face.load(args.face) if args.face else Face.default()
-    results = {}
+    trackers = args.tracker.split(",")
+    results = {t: {} for t in trackers}
+    rig_cache: dict = {}
+    if args.sheets:
+        args.sheets.mkdir(parents=True, exist_ok=True)
     for name in args.clips.split(","):
         path = args.data / "talking-head-videos" / f"{name}.mp4"
-        if args.sheets:
-            args.sheets.mkdir(parents=True, exist_ok=True)
-        results[name] = run_clip(path, face, args.size, args.sheets)
-        f = results[name]
-        print(f"{name}: {f['frames']} frames, {f['seconds']:.0f} s; gap r {fmt(f['gap'].get('r'))} range "
-              f"{fmt(f['gap'].get('range'))}; blink performer {fmt(f['eye']['blink performer'])} avatar "
-              f"{fmt(f['eye']['blink avatar'])}", flush=True)
-    print("\n| clip | set | gap r | gap range | width r | round r | eye r | eye range | eye at rest | blink performer | "
-          "blink avatar | blink ratio | brow r | smile r | smile at rest | gaze x r | gaze y r |")
-    print("|---|---|" + "---:|" * 15)
-    for name, f in results.items():
-        kind = "tuning" if name in TUNING else "held out" if name in HELD_OUT else "-"
-        row = [f["gap"].get("r"), f["gap"].get("range"), f["width"].get("r"), f["round"].get("r"), f["eye"].get("r"),
-               f["eye"].get("range"), f["eye"].get("rest vs neutral"), f["eye"]["blink performer"], f["eye"]["blink avatar"], f["eye"]["blink ratio"],
-               f["brow"].get("r"), f["smile"].get("r"), f["smile"].get("rest"), f["gaze x"].get("r"),
-               f["gaze y"].get("r")]
-        print(f"| {name} | {kind} | " + " | ".join(fmt(x) for x in row) + " |")
+        for tracker in trackers:
+            f = results[tracker][name] = run_clip(path, face, args.size, args.sheets, tracker, args.cache,
+                                                  rig_cache=rig_cache)
+            print(f"{name} {tracker}: {f['frames']} frames, {f['seconds']:.0f} s; " + ", ".join(
+                f"{k} {fmt(v)}" for k, v in summary_row(f).items()), flush=True)
+    for tracker in trackers:
+        print(f"\n### {tracker}\n")
+        print("| clip | set | " + " | ".join(SUMMARY) + " |")
+        print("|---|---|" + "---:|" * len(SUMMARY))
+        for name, f in results[tracker].items():
+            kind = "tuning" if name in TUNING else "held out" if name in HELD_OUT else "-"
+            print(f"| {name} | {kind} | " + " | ".join(fmt(v) for v in summary_row(f).values()) + " |")
+    print("\n### median (worst clip) per set\n")
+    print("| set | measure | " + " | ".join(trackers) + " |")
+    print("|---|---|" + "---|" * len(trackers))
     for label, group in (("tuning", TUNING), ("held out", HELD_OUT)):
-        chosen = [results[n] for n in group if n in results]
-        if not chosen:
-            continue
-        med = {key: np.nanmedian([c[m].get(s, np.nan) for c in chosen])
-               for key, (m, s) in {"gap r": ("gap", "r"), "gap range": ("gap", "range"), "round r": ("round", "r"),
-                                   "eye at rest": ("eye", "rest vs neutral"), "blink ratio": ("eye", "blink ratio"),
-                                   "smile at rest": ("smile", "rest")}.items()}
-        print(f"median over the {label} clips: " + ", ".join(f"{k} {fmt(v)}" for k, v in med.items()))
+        for key in SUMMARY:
+            cells = []
+            for tracker in trackers:
+                vals = [summary_row(results[tracker][n])[key] for n in group if n in results[tracker]]
+                vals = [v for v in vals if v is not None and np.isfinite(v)]
+                if not vals:
+                    cells.append("n/a")
+                    continue
+                # the worst clip: the lowest correlation, the ratio farthest from 1
+                worst = max(vals, key=lambda v: abs(np.log(max(v, 1e-9)))) if key in RATIOS else min(vals)
+                cells.append(f"{np.median(vals):.2f} ({worst:.2f})")
+            if any(c != "n/a" for c in cells):
+                print(f"| {label} | {key} | " + " | ".join(cells) + " |")
+
+
+# the figures the summary gives per clip: correlations (r) and ratios (1 = the performer's)
+SUMMARY = ("lip r", "lip range", "width r", "blink depth", "eye r", "brow r", "smile r", "round r", "gaze x r",
+           "gaze y r")
+RATIOS = ("lip range", "blink depth")
+
+
+def summary_row(f: dict) -> dict:
+    """One clip's :data:`SUMMARY` figures: ``blink depth`` is the avatar's deepest closure over the
+    performer's (1 - p2 / median of the eye opening, each)."""
+    e = f["eye"]
+    depth = e["blink avatar"] / e["blink performer"] if e.get("blink performer") else float("nan")
+    return {"lip r": f["gap"].get("r"), "lip range": f["gap"].get("range"), "width r": f["width"].get("r"),
+            "blink depth": depth, "eye r": e.get("r"), "brow r": f["brow"].get("r"), "smile r": f["smile"].get("r"),
+            "round r": f["round"].get("r"), "gaze x r": f["gaze x"].get("r"), "gaze y r": f["gaze y"].get("r")}
 
 
 if __name__ == "__main__":

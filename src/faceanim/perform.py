@@ -93,6 +93,14 @@ class Performance:
     pose: np.ndarray
     tracked: np.ndarray
     settings: dict | None = None
+    # "synthesis": ``weights`` are the bases' weights and the eyes' controls (above); "solve" and
+    # "mediapipe": ``weights`` are ARKit's 52 curves (Live Link order, 0..1) themselves
+    tracker: str = "synthesis"
+
+    @property
+    def is_arkit(self) -> bool:
+        """The weights are ARKit's 52 curves (the solve, MediaPipe's scores)."""
+        return self.tracker != "synthesis"
 
     @property
     def n_frames(self) -> int:
@@ -411,6 +419,81 @@ def perform(tracking: Tracking, db: MotionDatabase | None = None, raw: bool = Fa
     return Performance(tracking.fps, weights, pose, tracking.tracked.copy(), settings)
 
 
+TRACKERS = ("solve", "synthesis", "mediapipe")  # what turns a tracking into ARKit curves (--tracker)
+
+
+def _eye_columns() -> list[int]:
+    """ARKit columns (Live Link order) of eyeBlinkLeft, eyeBlinkRight and the eyes' looks in
+    :data:`EYE_CONTROLS` order."""
+    from faceanim.standards.arkit import ARKIT_NAMES
+
+    return [ARKIT_NAMES.index(n[0].upper() + n[1:]) for n in EYE_CONTROLS]
+
+
+def _head_pose(tracking: Tracking, smooth_head: bool) -> np.ndarray:
+    from faceanim.drivers.video.filters import one_euro
+
+    pose = hold_untracked(tracking.pose, tracking.tracked)
+    if smooth_head:
+        pose[:, :3] = one_euro(pose[:, :3], tracking.fps, HEAD_MIN_CUTOFF, HEAD_BETA)
+    return pose
+
+
+def solve_performance(tracking: Tracking, settings=None, smooth_head: bool = True,
+                      calibration=None) -> Performance:
+    """The performance as ARKit's 52 curves solved per frame on the generic head's own shapes
+    (:mod:`faceanim.drivers.video.solve`): the performer's neutral from the whole clip (or
+    ``calibration``), each tracked frame solved in order (the temporal term is causal), blinks
+    and gaze read off the lids and irises (:func:`blink_curves`, :func:`look_curves`),
+    ``cheekPuff`` from MediaPipe's scores. Lost faces hold, then ease to rest, as
+    :func:`perform`."""
+    from faceanim.drivers.video.solve import Solver, calibrate, head_frame, to_arkit
+    from faceanim.drivers.video.tracking import rigid_landmarks
+    from faceanim.face.generic_head import generic_head
+
+    if tracking.landmarks is None:
+        raise FaceAnimError("the ARKit solve needs the tracking's landmarks (track_frames keeps them)")
+    ok = np.flatnonzero(tracking.tracked)
+    if not len(ok):
+        raise FaceAnimError("no face was found in any frame of the video; give a video where the face is seen")
+    reference, rigid = generic_head().landmarks(), rigid_landmarks()
+    frontal = np.stack([head_frame(tracking.landmarks[k], rigid, reference) for k in ok])
+    cal = calibration or calibrate(frontal)
+    solver = Solver(cal.neutral, settings)
+    from faceanim.drivers.video.solve import camera_points
+
+    solved = np.zeros((tracking.n_frames, solver.n_shapes))
+    for k in ok:
+        solved[k] = solver.solve(camera_points(tracking.landmarks[k]))
+    solved = hold_untracked(solved, tracking.tracked)
+    scores = None if tracking.scores is None else hold_untracked(tracking.scores, tracking.tracked)
+    curves = to_arkit(solved, scores)
+    blinks = blink_curves(tracking)
+    curves[:, _eye_columns()] = np.hstack([blinks, look_curves(tracking, blinks)])
+    curves *= lost_face_fade(tracking.tracked, tracking.fps)[:, None]
+    return Performance(tracking.fps, curves, _head_pose(tracking, smooth_head), tracking.tracked.copy(),
+                       {"tracker": "solve", "neutral_fit_error": cal.fit_error}, tracker="solve")
+
+
+def mediapipe_performance(tracking: Tracking, smooth_head: bool = True) -> Performance:
+    """The performance as MediaPipe's own 52 blendshape scores, unchanged (``tongueOut``, which
+    MediaPipe does not score, 0): the baseline any user of MediaPipe's Face Landmarker has.
+    Lost faces hold, then ease to rest, as :func:`perform`."""
+    from faceanim.face.mediapipe import BLENDSHAPE_NAMES
+    from faceanim.standards.arkit import ARKIT_NAMES, apple_name
+
+    if tracking.scores is None:
+        raise FaceAnimError("MediaPipe's scores are not in this tracking (track_frames keeps them)")
+    scores = hold_untracked(np.nan_to_num(tracking.scores, nan=0.0), tracking.tracked)
+    curves = np.zeros((tracking.n_frames, len(ARKIT_NAMES)))
+    for a, name in enumerate(ARKIT_NAMES):
+        if apple_name(name) in BLENDSHAPE_NAMES:
+            curves[:, a] = scores[:, BLENDSHAPE_NAMES.index(apple_name(name))]
+    curves = np.clip(curves, 0.0, 1.0) * lost_face_fade(tracking.tracked, tracking.fps)[:, None]
+    return Performance(tracking.fps, curves, _head_pose(tracking, smooth_head), tracking.tracked.copy(),
+                       {"tracker": "mediapipe"}, tracker="mediapipe")
+
+
 def performance_rig(face: Face, db: MotionDatabase | None = None) -> Rig:
     """The face's rig for a motion database: each deformation basis retargeted once for the lower
     and once for the upper face (:func:`face_regions`), its lids left out, then the face's own
@@ -434,9 +517,12 @@ def performance_rig(face: Face, db: MotionDatabase | None = None) -> Rig:
 UPPER_ARKIT = ("Eye", "Brow")  # ARKit curves of the upper face; all others are the lower face's
 
 
-def arkit_curves(perf: Performance, db: MotionDatabase) -> np.ndarray:
-    """(F, 52) ARKit curves (Live Link Face order) of a performance (:func:`arkit_weights`)."""
-    return arkit_weights(perf.weights, db)
+def arkit_curves(perf: Performance, db: MotionDatabase | None = None) -> np.ndarray:
+    """(F, 52) ARKit curves (Live Link Face order) of a performance: its weights when they are
+    ARKit's curves (:attr:`Performance.is_arkit`), else :func:`arkit_weights` on ``db``."""
+    if perf.is_arkit:
+        return np.asarray(perf.weights, dtype=np.float64)
+    return arkit_weights(perf.weights, db or default_database())
 
 
 def arkit_matrix(db: MotionDatabase) -> np.ndarray:
@@ -492,6 +578,15 @@ def performance_animation(perf: Performance, db: MotionDatabase, face: Face | No
     from faceanim.export import Animation
 
     curves = arkit_curves(perf, db)
+    if perf.is_arkit:
+        if bases:
+            raise FaceAnimError("--bases writes the motion database's basis targets: only with --tracker synthesis")
+        eyes = eye_angles(curves[:, _eye_columns()[2:]])
+        return Animation(perf.fps, arkit=curves, head=np.radians(perf.pose[:, :3]), eyes=eyes, face=face,
+                         video=Path(video) if video is not None else None, name="performance", size=size,
+                         sound_name=str(Path(video).resolve()) if video is not None else "",
+                         extras={"source": Path(video).name, "tracker": perf.tracker} if video is not None
+                         else {"tracker": perf.tracker})
     eyes = eye_angles(perf.weights[:, 2 * db.n_bases + 2:2 * db.n_bases + 10])
     a = Animation(perf.fps, arkit=curves, head=np.radians(perf.pose[:, :3]), eyes=eyes, face=face,
                   video=Path(video) if video is not None else None, name="performance", size=size,

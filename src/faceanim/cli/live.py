@@ -88,7 +88,10 @@ def _cmd_live(args) -> None:
         threading.Thread(target=webbrowser.open, args=(page,), daemon=True).start()
     previous = signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM stops as Ctrl-C does
     try:
-        report = run_live(source, sinks, notice=lambda text: print(f"faceanim live: {text}", file=sys.stderr),
+        from faceanim.live.performer import live_tracker
+
+        performer = live_tracker(args.tracker) if picture else None
+        report = run_live(source, sinks, performer, notice=lambda text: print(f"faceanim live: {text}", file=sys.stderr),
                           sound=sound, mouth=args.mouth or "both")
     finally:
         signal.signal(signal.SIGTERM, previous)
@@ -105,7 +108,7 @@ def _cmd_live(args) -> None:
 def register(sub) -> None:
     p = sub.add_parser("live", help=HELP["live"],
                        description="Track a face live (a camera, or a clip played at its own frame rate), run the "
-                                   "performance synthesis of `faceanim perform` causally (and/or lip sync a sound "
+                                   "ARKit solve of `faceanim perform` causally (and/or lip sync a sound "
                                    "played in real time, --audio), and send ARKit's 52 curves "
                                    "with the head's and eyes' angles to each --to: vmc://HOST:PORT (VSeeFace, VNyan, "
                                    "Warudo, VMagicMirror; port 39539), livelink://HOST:PORT (Unreal's Live Link, "
@@ -124,6 +127,11 @@ def register(sub) -> None:
     p.add_argument("--to", action="append", metavar="SINK", required=True,
                    help="where the curves go (repeatable): vmc://HOST:PORT, livelink://HOST:PORT, file:PATH "
                         "(.csv .tsv .json .glb) or viewer[:PORT] (the faceanim view page, 8760 by default)")
+    p.add_argument("--tracker", choices=("solve", "synthesis", "mediapipe"), default="solve",
+                   help="with a video or camera: what turns the landmarks into ARKit's curves: solve (default: the "
+                        "generic head's ARKit shapes fitted to each frame, the performer's neutral from the frames "
+                        "so far), synthesis (Chai et al.'s motion database, causally) or mediapipe (MediaPipe's "
+                        "own 52 scores)")
     p.add_argument("--subject", default="faceanim", help="the Live Link subject name")
     p.add_argument("--face", metavar="MODEL", help="the avatar --to viewer shows, a .glb or .vrm whose morph targets "
                                                   "(or VRM expressions) carry ARKit's names (default: the default "

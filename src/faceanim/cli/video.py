@@ -23,6 +23,16 @@ from faceanim.export import WRITERS, suffixes
 from faceanim.limits import MAX_FRAMES
 
 
+TRACKER_HELP = ("what turns the tracked landmarks into ARKit's 52 curves: solve (default: the generic head's own "
+                "ARKit shapes fitted to each frame's 478 landmarks, with the performer's neutral from the clip), "
+                "synthesis (Chai et al.'s motion database synthesis, the paper's method) or mediapipe (MediaPipe's "
+                "own 52 blendshape scores, unchanged: the baseline)")
+
+
+def add_tracker(p) -> None:
+    p.add_argument("--tracker", choices=("solve", "synthesis", "mediapipe"), default="solve", help=TRACKER_HELP)
+
+
 def _even(name: str, low: int, high: int):
     """An argparse type: a whole, even number in [low, high] (H.264 needs even frame sizes)."""
     import argparse
@@ -84,9 +94,24 @@ def _cmd_track(args) -> None:
         total = args.frames
     with progress(total, "tracking", args.quiet) as bar:
         tr = track_frames(frames, fps, args.neutral_frame, bar)
-    names = [f"head_{n}" for n in POSE_NAMES] + list(CONTROL_NAMES)
-    written = write_curves_csv(out, names, np.hstack([tr.pose, tr.controls]), tr.fps, tr.tracked)
-    print(f"tracked {int(tr.tracked.sum())} of {tr.n_frames} frames at {tr.fps:g} fps; neutral frame {tr.neutral}")
+    if args.tracker == "synthesis":  # the paper's video analysis: its 15 control parameters
+        names = [f"head_{n}" for n in POSE_NAMES] + list(CONTROL_NAMES)
+        values = np.hstack([tr.pose, tr.controls])
+        what = f"the 15 control parameters against neutral frame {tr.neutral}"
+    else:  # ARKit's 52 curves per frame, as tracked (NaN where no face was found)
+        from faceanim.perform import mediapipe_performance, solve_performance
+        from faceanim.standards.arkit import APPLE_NAMES
+
+        if not tr.tracked.any():
+            raise CommandError("no face was found in any frame; give a video where the face is seen")
+        perf = solve_performance(tr, smooth_head=False) if args.tracker == "solve" else \
+            mediapipe_performance(tr, smooth_head=False)
+        curves = np.where(tr.tracked[:, None], perf.weights, np.nan)
+        names = [f"head_{n}" for n in POSE_NAMES] + list(APPLE_NAMES)
+        values = np.hstack([tr.pose, curves])
+        what = "ARKit's 52 curves " + ("solved per frame" if args.tracker == "solve" else "as MediaPipe scores them")
+    written = write_curves_csv(out, names, values, tr.fps, tr.tracked)
+    print(f"tracked {int(tr.tracked.sum())} of {tr.n_frames} frames at {tr.fps:g} fps; {what}")
     report([written])
 
 
@@ -136,7 +161,8 @@ def _cmd_perform(args) -> None:
     from faceanim.perform import default_database, perform, write_performance
 
     out, suffix = _output(args, "holds ARKit curves")
-    if args.overlap > args.window:
+    synthesis_only(args)
+    if args.tracker == "synthesis" and args.overlap > args.window:
         raise CommandError(f"--overlap ({args.overlap}) cannot exceed --window ({args.window})")
     info = video_info(args.video)
     if suffix == ".mp4":
@@ -144,7 +170,7 @@ def _cmd_perform(args) -> None:
 
         w, h = info.size
         check_video(info.frames_expected, max(2, int(round(w * args.size / h / 2)) * 2) + args.size, args.size)
-    db = load_database(args.db) if args.db else default_database()
+    db = (load_database(args.db) if args.db else default_database()) if args.tracker == "synthesis" else None
     if args.bases and suffix == ".vrm":
         raise CommandError("--bases writes faceanim's own basis targets to .glb; a .vrm output plays ARKit's curves "
                            "onto a --face VRM avatar (leave out --bases)")
@@ -152,6 +178,47 @@ def _cmd_perform(args) -> None:
     face = load_face(args) if WRITERS[suffix].shows_face and not own else None
     with progress(info.frames_expected, "tracking", args.quiet) as bar:
         tr = track_frames(video_frames(info), info.fps, args.neutral_frame, bar)
+    perf, how = performance_of(tr, args, db)
+    print(f"tracked {int(tr.tracked.sum())} of {tr.n_frames} frames at {tr.fps:g} fps; {how}")
+    if own:
+        from faceanim.perform import arkit_curves
+
+        report([play_own(args, out, arkit_curves(perf, db), perf.fps, "performance")])
+        return
+    with progress(perf.n_frames if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
+        written = write_performance(out, perf, db, face, args.video, args.size, bar, bases=args.bases)
+    report(written)
+
+
+# the options of --tracker synthesis alone, and their defaults
+SYNTHESIS_OPTIONS = {"db": None, "raw": False, "whole_face": False, "window": 5, "k": 30, "overlap": 2, "bases": False}
+
+
+def synthesis_only(args) -> None:
+    """Refuse the options of Chai et al.'s synthesis with another --tracker; give them their
+    defaults with it (they are None when not given)."""
+    given = [f"--{k.replace('_', '-')}" for k in SYNTHESIS_OPTIONS if getattr(args, k, None) not in (None, False)]
+    if args.tracker != "synthesis":
+        if given:
+            raise CommandError(f"{', '.join(given)} belong{'s' if len(given) == 1 else ''} to Chai et al.'s motion "
+                               f"synthesis: add --tracker synthesis, or leave {'it' if len(given) == 1 else 'them'} out "
+                               f"for --tracker {args.tracker}")
+        return
+    for k, default in SYNTHESIS_OPTIONS.items():
+        if getattr(args, k, None) is None:
+            setattr(args, k, default)
+
+
+def performance_of(tr, args, db):
+    """The performance of a tracking by ``args.tracker``, and a line saying how it was made."""
+    from faceanim.perform import mediapipe_performance, perform, solve_performance
+
+    if args.tracker == "solve":
+        perf = solve_performance(tr)
+        return perf, ("ARKit's 52 curves solved per frame on the generic head's shapes (neutral from the clip's "
+                      "face at rest)")
+    if args.tracker == "mediapipe":
+        return mediapipe_performance(tr), "MediaPipe's own 52 blendshape scores (--tracker mediapipe)"
     perf = perform(tr, db, raw=args.raw, window=args.window, k=args.k, overlap=args.overlap,
                    whole_face=args.whole_face)
     if args.raw:
@@ -164,16 +231,7 @@ def _cmd_perform(args) -> None:
         how = (f"filtered and synthesised {'on the whole face' if args.whole_face else 'feature-wise'} from "
                f"{db.n_frames} database frames (W={used['window']}, K={used['k']}, "
                f"delay {1000 * used['delay']:.0f} ms)")
-    print(f"tracked {int(tr.tracked.sum())} of {tr.n_frames} frames at {tr.fps:g} fps; {how}; "
-          f"{db.n_bases} deformation bases")
-    if own:
-        from faceanim.perform import arkit_curves
-
-        report([play_own(args, out, arkit_curves(perf, db), perf.fps, "performance")])
-        return
-    with progress(perf.n_frames if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
-        written = write_performance(out, perf, db, face, args.video, args.size, bar, bases=args.bases)
-    report(written)
+    return perf, f"{how}; {db.n_bases} deformation bases"
 
 
 def _cmd_arkit_play(args) -> None:
@@ -203,19 +261,22 @@ def _cmd_arkit_play(args) -> None:
 
 def register(sub) -> None:
     t = sub.add_parser("track", help=HELP["track"],
-                       description="Track the face in a video (or a camera) with the MediaPipe face mesh: per frame "
-                                   "the head's yaw, pitch, roll (degrees), position (x, y pixels of the nose bridge) "
-                                   "and scale (pixels per metre), and the paper's 15 control parameters from 19 "
-                                   "features seen fronto-parallel (mouth 6, nose 2, eyes 2, brows 5), normalised "
-                                   "against the performer's neutral frame. Frames without a face have tracked=0 "
-                                   "and empty cells.")
+                       description="Track the face in a video (or a camera) with MediaPipe's Face Landmarker: per "
+                                   "frame the head's yaw, pitch, roll (degrees), position (x, y pixels of the nose "
+                                   "bridge) and scale (pixels per metre), then ARKit's 52 curves (Apple's names, 0..1: "
+                                   "the solve, or MediaPipe's scores with --tracker mediapipe) or, with --tracker "
+                                   "synthesis, the paper's 15 control parameters from 19 features seen "
+                                   "fronto-parallel (mouth 6, nose 2, eyes 2, brows 5), normalised against the "
+                                   "performer's neutral frame. Frames without a face have tracked=0 and empty cells.")
     t.add_argument("video", nargs="?", metavar="VIDEO", help="a video file (MP4, MOV, MKV, AVI, WebM)")
     t.add_argument("--camera", type=_arg_type("--camera", 0, 63, integer=True), metavar="N",
                    help="track camera N instead of a file")
     t.add_argument("--frames", type=_arg_type("--frames", 1, MAX_FRAMES, integer=True), default=300,
                    help="frames to take from a camera")
     t.add_argument("--neutral-frame", type=_arg_type("--neutral-frame", 0, MAX_FRAMES, integer=True), metavar="N",
-                   help="the frame with the performer's neutral face (default: found automatically)")
+                   help="--tracker synthesis: the frame with the performer's neutral face (default: found "
+                        "automatically)")
+    add_tracker(t)
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     add_output(t, [".csv"])
     t.set_defaults(func=_cmd_track)
@@ -253,25 +314,29 @@ def register(sub) -> None:
                                    "by name instead: the same avatar with the performance as one more animation.")
     p.add_argument("video", metavar="VIDEO", help="a video file of a performer (MP4, MOV, MKV, AVI, WebM)")
     add_face(p, positional=False)
-    p.add_argument("--db", metavar="MOTION.npz", help="a motion database from faceanim mocap build "
-                                                      "(default: the shipped one)")
-    p.add_argument("--raw", action="store_true", help="map each frame's controls directly (no filtering or "
-                                                      "synthesis), to compare")
-    p.add_argument("--whole-face", action="store_true",
-                   help="one search on all 15 controls, as the paper (default: the lower and upper face each "
-                        "from its own controls, which follows the mouth far better)")
-    p.add_argument("--window", type=_arg_type("--window", 1, 120, integer=True), default=5,
-                   help="segment length W in frames (the paper: 20)")
-    p.add_argument("--k", type=_arg_type("--k", 1, 500, integer=True), default=30, help="nearest segments K")
-    p.add_argument("--overlap", type=_arg_type("--overlap", 1, 120, integer=True), default=2,
-                   help="segments blended per frame (the delay is overlap - 1 frames; the paper: 5)")
+    add_tracker(p)
+    p.add_argument("--db", metavar="MOTION.npz", help="--tracker synthesis: a motion database from faceanim mocap "
+                                                      "build (default: the shipped one)")
+    p.add_argument("--raw", action="store_true", default=None,
+                   help="--tracker synthesis: map each frame's controls directly (no filtering or synthesis), to "
+                        "compare")
+    p.add_argument("--whole-face", action="store_true", default=None,
+                   help="--tracker synthesis: one search on all 15 controls, as the paper (default: the lower and "
+                        "upper face each from its own controls, which follows the mouth far better)")
+    p.add_argument("--window", type=_arg_type("--window", 1, 120, integer=True),
+                   help="--tracker synthesis: segment length W in frames (default 5; the paper: 20)")
+    p.add_argument("--k", type=_arg_type("--k", 1, 500, integer=True), help="--tracker synthesis: nearest segments K "
+                                                                            "(default 30)")
+    p.add_argument("--overlap", type=_arg_type("--overlap", 1, 120, integer=True),
+                   help="--tracker synthesis: segments blended per frame (default 2; the delay is overlap - 1 "
+                        "frames; the paper: 5)")
     p.add_argument("--neutral-frame", type=_arg_type("--neutral-frame", 0, MAX_FRAMES, integer=True), metavar="N",
                    help="the frame with the performer's neutral face (default: found automatically)")
     p.add_argument("--size", type=_even("--size", 64, 1024), default=512,
                    help="MP4 height in pixels (even)")
-    p.add_argument("--bases", action="store_true",
-                   help=".glb: one morph target per deformation basis (lower_01 ..., upper_01 ..., weights about "
-                        "-1..1) instead of ARKit's 52")
+    p.add_argument("--bases", action="store_true", default=None,
+                   help="--tracker synthesis, .glb: one morph target per deformation basis (lower_01 ..., upper_01 "
+                        "..., weights about -1..1) instead of ARKit's 52")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     add_output(p, (*suffixes(".fap"), ".vrm"),
                help=".tsv/.json: Rhubarb Lip Sync's mouth cues of the performer's mouth")

@@ -135,6 +135,14 @@ class FaceMesh:
             except (RuntimeError, ValueError):
                 raise LandmarkError("MediaPipe could not load faceanim's face_landmarker.task; reinstall faceanim "
                                     f"and mediapipe ({INSTALL})") from None
+            # one frame through the graph while its logs go nowhere: its calculators open (and log)
+            # on worker threads after create returns, which a stop arriving then would let through
+            blank = _image(mp, np.zeros((64, 64, 3), np.uint8))
+            if self._video:
+                self._fl.detect_for_video(blank, 0)
+                self._last_ms = 0
+            else:
+                self._fl.detect(blank)
 
     def detect(self, rgb: np.ndarray, time: float | None = None) -> FaceResult | None:
         """The face in ``rgb`` (a video's next frame, at ``time`` seconds, in video mode) or None."""
@@ -199,6 +207,8 @@ def face_detector(model: int, confidence: float = 0.3, what: str = "face detecti
     options = vision.FaceDetectorOptions(base_options=BaseOptions(model_asset_buffer=data),
                                          min_detection_confidence=confidence)
     with native_stderr_quiet(), vision.FaceDetector.create_from_options(options) as fd:
+        fd.detect(_image(mp, np.zeros((64, 64, 3), np.uint8)))  # its calculators open (and log) now
+
         def detect(rgb):  # quiet: the whole block runs in native_stderr_quiet
             image = _image(mp, rgb)
             h, w = image.height, image.width
@@ -219,6 +229,8 @@ def selfie_segmenter(model: int, what: str = "person segmentation"):
     options = vision.ImageSegmenterOptions(base_options=BaseOptions(model_asset_buffer=model_bytes(name)),
                                            output_confidence_masks=True, output_category_mask=False)
     with native_stderr_quiet(), vision.ImageSegmenter.create_from_options(options) as seg:
+        seg.segment(_image(mp, np.zeros((64, 64, 3), np.uint8)))  # its calculators open (and log) now
+
         def segment(rgb):
             mask = seg.segment(_image(mp, rgb)).confidence_masks[0].numpy_view()
             return np.array(mask.reshape(mask.shape[:2]), dtype=np.float32)

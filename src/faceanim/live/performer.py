@@ -54,6 +54,13 @@ from faceanim.perform import (
     rest_frames,
 )
 
+def _eye_columns() -> list[int]:
+    from faceanim.perform import _eye_columns as columns
+
+    return columns()
+
+
+_EYE_COLUMNS = _eye_columns()  # ARKit columns of the blinks, then the looks (EYE_CONTROLS order)
 HISTORY = 20.0  # seconds of tracked frames the running statistics are taken over
 REFRESH = 0.5  # seconds between two updates of the statistics (after the first second: every frame)
 SETTLE = 1.0  # seconds from the first tracked frame during which the statistics follow every frame
@@ -78,7 +85,34 @@ class LiveSample:
     capture: float = 0.0
 
 
-class LivePerformer:
+class LiveFace:
+    """What every live tracker does with a frame (see the module docstring): the head's pose and
+    its One-Euro filter, the running statistics of the lids, the gaze and the mouth, the blinks
+    and the gaze read off, and a lost face held and eased to rest. Subclasses make the rest of
+    the expression (:meth:`_expression`) and say how a frame's weights become ARKit's curves
+    (:meth:`_compose`, :meth:`_arkit`)."""
+
+    n_weights = 0
+
+    def _start(self) -> None:
+        self.reference = generic_head().landmarks()
+        self.rigid = rigid_landmarks()
+        self.head_filter = OneEuro(HEAD_MIN_CUTOFF, HEAD_BETA)
+        self.history: deque = deque()  # (time, raw, pose, features, gaze, mouth, eyes open, landmarks) of tracked frames
+        self.first_tracked: float | None = None
+        self.refreshed = -np.inf
+        self.stats: dict = {}
+        self.looks: deque = deque(maxlen=SPIKE)
+        self.look_hold = np.zeros(8)
+        self.expression = np.zeros(self.n_weights)
+        self.head = np.zeros(3)
+        self.last_tracked: float | None = None
+        self.fade = 1.0
+        self.last_time: float | None = None
+        self.scores: np.ndarray | None = None  # MediaPipe's scores of the newest frame, when given
+
+
+class LivePerformer(LiveFace):
     """The perform path one frame at a time (see the module docstring): ``step(landmarks, time)``
     with a frame's 478 MediaPipe landmarks in pixels (None where no face was found) and its time in
     seconds (increasing) -> :class:`LiveSample`."""
@@ -86,6 +120,7 @@ class LivePerformer:
     def __init__(self, db: MotionDatabase | None = None, window: int = WINDOW, k: int = K, overlap: int = 1,
                  follow_mouth: bool = True, search: str = "kdtree"):
         self.db = db = db or default_database()
+        self.n_weights = 2 * db.n_bases + 10
         self.scale = np.maximum(db.controls.std(axis=0), 1e-9)
         self.lo, self.hi = np.percentile(db.controls, [0.5, 99.5], axis=0)
         known = db.controls / self.scale
@@ -108,24 +143,11 @@ class LivePerformer:
                                                  db.take_starts, search))
         self.delay = (int(overlap) - 1) / db.fps
         self.arkit = arkit_matrix(db)
-        self.reference = generic_head().landmarks()
-        self.rigid = rigid_landmarks()
-        self.head_filter = OneEuro(HEAD_MIN_CUTOFF, HEAD_BETA)
-        self.history: deque = deque()  # (time, raw, pose, features, gaze, mouth) of tracked frames
-        self.first_tracked: float | None = None
-        self.refreshed = -np.inf
-        self.stats: dict = {}
         self.last_query: tuple[float, np.ndarray] | None = None
         self.synth: tuple[np.ndarray, np.ndarray] | None = None  # the newest lower and upper output
-        self.looks: deque = deque(maxlen=SPIKE)
-        self.look_hold = np.zeros(8)
-        self.expression = np.zeros(2 * db.n_bases + 10)
-        self.head = np.zeros(3)
-        self.last_tracked: float | None = None
-        self.fade = 1.0
-        self.last_time: float | None = None
+        self._start()
 
-    # -- running statistics ----------------------------------------------------------------------
+    # -- running statistics (LiveFace) -----------------------------------------------------------
     def _refresh(self) -> None:
         times = np.array([h[0] for h in self.history])
         raw = np.array([h[1] for h in self.history])
@@ -159,9 +181,9 @@ class LivePerformer:
             beyond = np.clip((time - self.last_tracked - LOST_HOLD) / LOST_EASE, 0.0, 1.0)
             self.fade = min(self.fade, 0.5 * (1.0 + np.cos(np.pi * beyond)))
         weights = self.expression * self.fade
-        n_l = self.db.n_bases
-        return LiveSample(time, landmarks is not None, weights, arkit_weights(weights[None], self.db, self.arkit)[0],
-                          self.head.copy(), eye_angles(weights[2 * n_l + 2:]))
+        arkit = self._arkit(weights)
+        return LiveSample(time, landmarks is not None, weights, arkit, self.head.copy(),
+                          eye_angles(arkit[_EYE_COLUMNS[2:]]))
 
     def _tracked(self, landmarks: np.ndarray, time: float) -> None:
         pose, feats, gaze, gap = pose_and_features(landmarks, self.rigid, self.reference, eyes_and_lips=True)
@@ -174,13 +196,33 @@ class LivePerformer:
         closing = [float(blink_closure(raw[CONTROL_NAMES.index(n)], *st[n])) if st else 0.0
                    for n in ("eye_open_L", "eye_open_R")]
         eyes_open = max(closing) < GAZE_HOLD
-        self.history.append((time, raw, pose, feats, gaze, mouth, eyes_open))
+        self.history.append((time, raw, pose, feats, gaze, mouth, eyes_open, self._kept(landmarks)))
         while self.history and self.history[0][0] < time - HISTORY:
             self.history.popleft()
         if time - self.first_tracked < SETTLE or time - self.refreshed >= REFRESH:
             self._refresh()
             st = self.stats
         self.head = np.radians(self.head_filter(pose[:3], time))
+        face = self._expression(landmarks, raw, feats, mouth, gap, time)
+        # the lids and the gaze, read off directly (the gaze through a 3-frame causal median)
+        blinks = blink_dead_zone(np.array([blink_closure(raw[CONTROL_NAMES.index(n)], *st[n])
+                                           for n in ("eye_open_L", "eye_open_R")]))
+        for e, outward in ((0, 1.0), (1, -1.0)):
+            if blinks[e] < GAZE_HOLD:
+                self.look_hold[4 * e:4 * e + 4] = look_weights(gaze[2 * e:2 * e + 2] - st["gaze"][2 * e:2 * e + 2],
+                                                               outward)
+        self.looks.append(self.look_hold.copy())
+        looks = np.median(np.array(self.looks), axis=0)
+        self.expression = self._compose(face, blinks, looks)
+
+    # -- what a subclass makes ------------------------------------------------------------------
+    def _kept(self, landmarks: np.ndarray):
+        """What the history keeps of a frame's landmarks (nothing here)."""
+        return None
+
+    def _expression(self, landmarks, raw, feats, mouth, gap, time) -> np.ndarray:
+        """The expression but the eyes: the lower and the upper face's synthesised weights."""
+        st = self.stats
         # the controls, as the offline path has them, then the synthesis at the database's rate
         query = np.clip(normalise(raw, st["typical"], st["neutral_features"]), self.lo, self.hi) / self.scale
         self._synthesise(query, time)
@@ -192,16 +234,13 @@ class LivePerformer:
             target = np.clip(target, self.lo_m, self.hi_m) / self.spread
             got = lower[n_l:n_l + len(MOUTH_MEASURES)]
             lower = lower[:n_l] + (target - got) @ self.along
-        # the lids and the gaze, read off directly (the gaze through a 3-frame causal median)
-        blinks = blink_dead_zone(np.array([blink_closure(raw[CONTROL_NAMES.index(n)], *st[n])
-                                           for n in ("eye_open_L", "eye_open_R")]))
-        for e, outward in ((0, 1.0), (1, -1.0)):
-            if blinks[e] < GAZE_HOLD:
-                self.look_hold[4 * e:4 * e + 4] = look_weights(gaze[2 * e:2 * e + 2] - st["gaze"][2 * e:2 * e + 2],
-                                                               outward)
-        self.looks.append(self.look_hold.copy())
-        looks = np.median(np.array(self.looks), axis=0)
-        self.expression = np.r_[lower, upper, blinks, looks]
+        return np.r_[lower, upper]
+
+    def _compose(self, face: np.ndarray, blinks: np.ndarray, looks: np.ndarray) -> np.ndarray:
+        return np.r_[face, blinks, looks]
+
+    def _arkit(self, weights: np.ndarray) -> np.ndarray:
+        return arkit_weights(weights[None], self.db, self.arkit)[0]
 
     def _synthesise(self, query: np.ndarray, time: float) -> None:
         """Push the database-rate samples between the previous query and this one (at most a
@@ -225,3 +264,88 @@ class LivePerformer:
                 self.synth = (lo, up)
         if self.synth is None:  # the first frames of a delayed (overlap > 1) synthesis
             self.synth = (self.lower.s.markers.mean(axis=0), self.upper.s.markers.mean(axis=0))
+
+
+class LiveSolver(LivePerformer):
+    """The ARKit solve (:mod:`faceanim.drivers.video.solve`) one frame at a time: the performer's
+    neutral is the median of the frames most like a face at rest among those of the last
+    :data:`HISTORY` seconds (:func:`~faceanim.drivers.video.solve.rest_frames`), updated with the
+    other running statistics; each frame is solved against it (the temporal term is causal, as
+    offline); blinks, gaze, head and a lost face as :class:`LivePerformer`. ``step`` takes the
+    frame's MediaPipe scores too (``cheekPuff``); the sample's weights are ARKit's 52 curves."""
+
+    def __init__(self, settings=None):
+        from faceanim.drivers.video.solve import Solver, solved_shapes
+
+        self.n_weights = 52
+        self.solver_settings = settings
+        self.solver: Solver | None = None
+        self.n_solved = len(solved_shapes())
+        self._start()
+
+    def step(self, landmarks: np.ndarray | None, time: float, scores: np.ndarray | None = None) -> LiveSample:
+        self.scores = scores
+        return super().step(landmarks, time)
+
+    def _kept(self, landmarks: np.ndarray):
+        from faceanim.drivers.video.solve import head_frame
+
+        return head_frame(landmarks, self.rigid, self.reference).astype(np.float32)
+
+    def _refresh(self) -> None:
+        from faceanim.drivers.video.solve import Solver, rest_frames
+
+        super()._refresh()
+        frontal = np.array([h[7] for h in self.history], dtype=np.float64)
+        neutral = np.median(frontal[rest_frames(frontal)], axis=0)
+        if self.solver is None:
+            self.solver = Solver(neutral, self.solver_settings)
+        else:
+            self.solver.neutral = neutral
+
+    def _expression(self, landmarks, raw, feats, mouth, gap, time) -> np.ndarray:
+        from faceanim.drivers.video.solve import camera_points, to_arkit
+
+        e = self.solver.solve(camera_points(landmarks))
+        return to_arkit(e[None], None if self.scores is None else np.asarray(self.scores)[None])[0]
+
+    def _compose(self, face: np.ndarray, blinks: np.ndarray, looks: np.ndarray) -> np.ndarray:
+        out = np.array(face, dtype=np.float64)
+        out[_EYE_COLUMNS] = np.r_[blinks, looks]
+        return out
+
+    def _arkit(self, weights: np.ndarray) -> np.ndarray:
+        return np.clip(weights, 0.0, 1.0)
+
+
+class LiveScores(LiveSolver):
+    """MediaPipe's own 52 blendshape scores, unchanged (``tongueOut`` 0), live: the baseline
+    (``--tracker mediapipe``); the head and a lost face as :class:`LivePerformer`."""
+
+    def _refresh(self) -> None:
+        LivePerformer._refresh(self)
+
+    def _kept(self, landmarks: np.ndarray):
+        return None
+
+    def _expression(self, landmarks, raw, feats, mouth, gap, time) -> np.ndarray:
+        from faceanim.face.mediapipe import BLENDSHAPE_NAMES
+        from faceanim.standards.arkit import APPLE_NAMES
+
+        out = np.zeros(52)
+        if self.scores is not None:
+            by = dict(zip(BLENDSHAPE_NAMES, np.asarray(self.scores, dtype=np.float64)))
+            out = np.array([by.get(n, 0.0) for n in APPLE_NAMES])
+        return out
+
+    def _compose(self, face: np.ndarray, blinks: np.ndarray, looks: np.ndarray) -> np.ndarray:
+        return np.array(face, dtype=np.float64)
+
+
+def live_tracker(name: str = "solve") -> LiveFace:
+    """The live counterpart of ``--tracker`` ``name``: solve, synthesis or mediapipe."""
+    if name == "solve":
+        return LiveSolver()
+    if name == "mediapipe":
+        return LiveScores()
+    return LivePerformer()

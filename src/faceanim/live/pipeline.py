@@ -1,8 +1,9 @@
 """``faceanim live``: the perform path with a clock. Capture, track, synthesise, send.
 
 The source captures in its own thread (:mod:`faceanim.live.sources`) and keeps only the newest
-frame; this loop takes it, tracks it (MediaPipe's face mesh in video mode), steps the
-:class:`~faceanim.live.performer.LivePerformer` and hands the sample to every sink
+frame; this loop takes it, tracks it (MediaPipe's Face Landmarker in video mode), steps the live
+tracker (:class:`~faceanim.live.performer.LiveSolver` by default: the ARKit solve; or Chai et al.'s
+synthesis, :class:`~faceanim.live.performer.LivePerformer`) and hands the sample to every sink
 (:mod:`faceanim.live.sinks`). Each frame carries its capture time; the latency reported is from
 capture to the last sink's send. Ctrl-C (or the source's end) stops the run; every sink is closed,
 so file sinks are complete.
@@ -15,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from faceanim.live.performer import LivePerformer
+from faceanim.live.performer import LiveFace, LiveSolver
 from faceanim.live.sinks import Sink
 from faceanim.live.sources import Source
 
@@ -54,7 +55,7 @@ class LiveReport:
                 f"{self.dropped} dropped ({share:.1f}%), latency p50 {p50:.0f} ms, p95 {p95:.0f} ms")
 
 
-def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None = None,
+def run_live(source: Source, sinks: list[Sink], performer: LiveFace | None = None,
              keep_samples: bool = False, tracker=None, notice=None, sound=None, mouth: str = "both") -> LiveReport:
     """Run until the source ends or Ctrl-C; see the module docstring. ``notice(text)`` is told once
     when the face has been lost for longer than the performer holds it. ``sound``: an
@@ -67,7 +68,7 @@ def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None 
     from faceanim.perform import LOST_HOLD
 
     if source.images:
-        performer = performer or LivePerformer()
+        performer = performer or LiveSolver()
     report = LiveReport(images=source.images)
     idle = IdleFace()
     lost_since, said = None, False
@@ -76,11 +77,11 @@ def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None 
             tracker = FaceTracker()
             tracker(np.zeros((64, 64, 3), dtype=np.uint8))  # MediaPipe's graph starts on its first frame
 
-    def track(image):
+    def track(image, at):
         if report.processed >= QUIET_FRAMES:
-            return tracker(image)
+            return tracker.detect(image, at)
         with native_stderr_quiet():  # MediaPipe logs as its face model starts on the first faces
-            return tracker(image)
+            return tracker.detect(image, at)
 
     started = time.monotonic()
     try:
@@ -94,7 +95,12 @@ def run_live(source: Source, sinks: list[Sink], performer: LivePerformer | None 
             if frame.image is None:  # a tick of a sound alone
                 sample = sound_sample(frame.mouth, frame.time, idle)
             else:
-                sample = performer.step(track(frame.image), frame.time)
+                found = track(frame.image, frame.time)
+                if isinstance(performer, LiveSolver):  # the solve and the scores take MediaPipe's scores
+                    sample = performer.step(None if found is None else found.landmarks, frame.time,
+                                            None if found is None else found.blendshapes)
+                else:
+                    sample = performer.step(None if found is None else found.landmarks, frame.time)
                 if sound is not None:
                     merge_mouth(sample, sound.curves(), mouth)
             sample.capture = time.time() - (time.monotonic() - frame.capture)  # as the epoch, for a page

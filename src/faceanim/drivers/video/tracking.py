@@ -2,8 +2,8 @@
 parameters per frame of a video of a performer.
 
 The paper tracks the head with a textured cylinder and 19 features with affine optical flow,
-both initialised by hand. We track the face with MediaPipe's face mesh (478 landmarks with
-depth, from the pinned wheel; user-independent, no clicks), and then do what the paper does
+both initialised by hand. We track the face with MediaPipe's Face Landmarker (478 landmarks with
+depth, the model shipped with faceanim; user-independent, no clicks), and then do what the paper does
 with its tracks:
 
 - **Head pose (6 DOF)**: a similarity fit (Umeyama) of the frame's 3D landmarks to the generic
@@ -75,6 +75,10 @@ class Tracking:
     neutral: int
     gaze: np.ndarray | None = None  # (F, 4): :func:`gaze_offsets` per frame, NaN where untracked
     inner_gap: np.ndarray | None = None  # (F,): :func:`inner_lip_gap` per frame, NaN where untracked
+    # (F, 478, 3) float32 MediaPipe's landmarks in pixels (x right, y down, z away) and (F, 51)
+    # float32 its blendshape scores (:data:`~faceanim.face.mediapipe.BLENDSHAPE_NAMES`), NaN where untracked
+    landmarks: np.ndarray | None = None
+    scores: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -147,9 +151,10 @@ def pose_and_features(landmarks_px: np.ndarray, rigid: np.ndarray, reference: np
 
 
 class FaceTracker(FaceMesh):
-    """MediaPipe's face mesh in video mode (refined: 478 landmarks with the irises), one frame at a
+    """MediaPipe's Face Landmarker in video mode (478 landmarks with the irises), one frame at a
     time: ``tracker(rgb)`` -> (478, 3) landmarks in pixels with depth (x right, y down, z away from
-    the camera, scaled by the image width), or None where no face is found. A context manager."""
+    the camera, scaled by the image width), or None where no face is found; ``tracker.detect(rgb)``
+    also gives MediaPipe's 52 blendshape scores. A context manager."""
 
     def __init__(self):
         super().__init__(video=True, what="video tracking")
@@ -162,10 +167,16 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
 
     reference = generic_head().landmarks()
     rigid = rigid_landmarks()
-    pose, feats, raw, tracked, gaze, gap = [], [], [], [], [], []
+    from faceanim.face.mediapipe import BLENDSHAPE_NAMES
+
+    pose, feats, raw, tracked, gaze, gap, marks, scores = [], [], [], [], [], [], [], []
     with native_stderr_quiet(), FaceTracker() as tracker:
-        for frame in frames:
-            lm = tracker(frame)
+        for k, frame in enumerate(frames):
+            found = tracker.detect(frame, k / float(fps))
+            lm = None if found is None else found.landmarks
+            marks.append(np.full((478, 3), np.nan, np.float32) if lm is None else lm.astype(np.float32))
+            scores.append(np.full(len(BLENDSHAPE_NAMES), np.nan, np.float32) if found is None
+                          else found.blendshapes.astype(np.float32))
             if lm is not None:
                 p6, f19, g4, lips = pose_and_features(lm, rigid, reference, eyes_and_lips=True)
                 pose.append(p6)
@@ -198,7 +209,7 @@ def track_frames(frames: Iterable[np.ndarray], fps: float, neutral_frame: int | 
                                 "as --neutral-frame")
         reference = raw[neutral]
     return Tracking(float(fps), tracked, pose, feats, raw, normalise(raw, reference, feats[neutral]), neutral,
-                    np.array(gaze), np.array(gap))
+                    np.array(gaze), np.array(gap), np.array(marks), np.array(scores))
 
 
 def track_video(path, neutral_frame: int | None = None, progress=None) -> Tracking:
