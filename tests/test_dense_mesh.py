@@ -37,9 +37,13 @@ def test_landmarks_of_a_subdivided_scan_are_the_scans(scans):
     b = detect_landmarks(dense).positions
     iod = np.linalg.norm(a[33] - a[263])
     d = np.linalg.norm(a - b, axis=1) / iod
-    # the face oval's side points graze the outline (their depth is ill-defined): 0.13 measured;
+    # the face oval's side points graze the outline (their depth is ill-defined): 0.25 measured with
+    # the Face Landmarker (point 454; 0.13 with the legacy face mesh), every other point under 0.12;
     # the eyelids' rays go through the scan's eye holes and snap to the rim (1.8 IOD before)
-    assert np.median(d) < 0.02 and d.max() < 0.2
+    from faceanim.drivers.video.solve import FACE_OVAL
+
+    inner = np.setdiff1d(np.arange(len(d)), FACE_OVAL)
+    assert np.median(d) < 0.02 and d[inner].max() < 0.15 and d.max() < 0.35
 
 
 def test_a_subdivided_scan_rigs_like_the_scan(scans):

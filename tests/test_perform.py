@@ -254,7 +254,7 @@ def test_perform_command_writes_glb_csv_and_mp4(tmp_path, db):
 
     video = VIDEOS / "d0.mp4"
     glb, out_csv, mp4 = tmp_path / "p.glb", tmp_path / "p.csv", tmp_path / "p.mp4"
-    assert run(["perform", video, "--quiet", "--bases", "-o", glb]) == 0
+    assert run(["perform", video, "--quiet", "--bases", "-o", glb]) == 0  # --bases: Chai et al.'s synthesis
     doc = glb_json(glb)
     targets = doc["meshes"][0]["extras"]["targetNames"]
     assert targets == [f"{r}_{k + 1:02d}" for r in ("lower", "upper") for k in range(db.n_bases)] + list(EYE_CONTROLS)
@@ -293,9 +293,11 @@ def test_perform_command_writes_glb_csv_and_mp4(tmp_path, db):
 
     smoothed = perform(tr, db).pose[:, 0]  # the tracked yaw, smoothed by the One-Euro filter
     np.testing.assert_allclose(np.degrees(take.head[:, 0]), smoothed, atol=1e-3)
-    # close to the tracked yaw, with less frame-to-frame trembling
+    # close to the tracked yaw, with less frame-to-frame trembling (the second differences: 0.23 of
+    # the tracked yaw's measured; the Face Landmarker's yaw is steady enough that first differences,
+    # which also hold the head's real turns, drop only to 0.62)
     assert np.abs(smoothed - tr.pose[:, 0]).max() < 3.0
-    assert np.abs(np.diff(smoothed)).mean() < 0.5 * np.abs(np.diff(tr.pose[:, 0])).mean()
+    assert np.abs(np.diff(smoothed, 2)).mean() < 0.5 * np.abs(np.diff(tr.pose[:, 0], 2)).mean()
 
     assert run(["perform", video, "--quiet", "--size", "256", "-o", mp4]) == 0
     info = video_info(mp4)

@@ -53,9 +53,11 @@ EYE_CURVES = ("eyeBlink_L", "eyeBlink_R")  # the generic head's shapes they repl
 BLINK_DEAD = 0.1  # closures below this (of the performer's range) are rest: no droop from lid noise
 CLOSED_LID = 0.1  # MediaPipe's lid opening on a closed eye, of the open one (the performer's p1 when
 #                   they blink: 0.04-0.10 measured on the talking-head clips)
-IRIS_RADIUS = 0.26  # eye widths the iris offset (MediaPipe's, against the eye's corners) moves per
-#                    radian of the eye's turn, as sin: the default face rendered looking 0.46 rad to
-#                    its left and tracked moved its irises 0.10 and 0.13 eye widths
+IRIS_RADIUS = 0.31  # eye widths the iris offset (MediaPipe's, against the eye's corners) moves per
+#                    radian of the eye's turn, as sin: the default face rendered looking to its left
+#                    (eyeLookOutLeft and eyeLookInRight 0.8: 0.46 and 0.50 rad) and tracked by the Face
+#                    Landmarker moved its irises 0.154 and 0.131 eye widths (radii 0.34 and 0.27; the
+#                    legacy face mesh read 0.10 and 0.13 at 0.46 rad: 0.26)
 GAZE_HOLD = 0.5  # while a lid is closed this far, the iris is not seen: the gaze holds
 # the mouth's measures the lower face's synthesis is held to (:func:`mouth_measures`): K blended
 # neighbours searched on three controls came out with the lip gap 0.42-0.88 of the performer's and

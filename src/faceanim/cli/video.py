@@ -29,8 +29,10 @@ TRACKER_HELP = ("what turns the tracked landmarks into ARKit's 52 curves: solve 
                 "own 52 blendshape scores, unchanged: the baseline)")
 
 
-def add_tracker(p) -> None:
-    p.add_argument("--tracker", choices=("solve", "synthesis", "mediapipe"), default="solve", help=TRACKER_HELP)
+def add_tracker(p, synthesis_options: bool = False) -> None:
+    p.add_argument("--tracker", choices=("solve", "synthesis", "mediapipe"), default=None if synthesis_options else "solve",
+                   help=TRACKER_HELP + ("; an option of the synthesis (--db, --window, --k, --overlap, --raw, "
+                                        "--whole-face, --bases) chooses it" if synthesis_options else ""))
 
 
 def _even(name: str, low: int, high: int):
@@ -195,9 +197,12 @@ SYNTHESIS_OPTIONS = {"db": None, "raw": False, "whole_face": False, "window": 5,
 
 
 def synthesis_only(args) -> None:
-    """Refuse the options of Chai et al.'s synthesis with another --tracker; give them their
-    defaults with it (they are None when not given)."""
+    """The options of Chai et al.'s synthesis (--db, --window, ...) choose it when --tracker is not
+    given, and are refused with another --tracker; with the synthesis they get their defaults
+    (they are None when not given)."""
     given = [f"--{k.replace('_', '-')}" for k in SYNTHESIS_OPTIONS if getattr(args, k, None) not in (None, False)]
+    if args.tracker is None:
+        args.tracker = "synthesis" if given else "solve"
     if args.tracker != "synthesis":
         if given:
             raise CommandError(f"{', '.join(given)} belong{'s' if len(given) == 1 else ''} to Chai et al.'s motion "
@@ -314,7 +319,7 @@ def register(sub) -> None:
                                    "by name instead: the same avatar with the performance as one more animation.")
     p.add_argument("video", metavar="VIDEO", help="a video file of a performer (MP4, MOV, MKV, AVI, WebM)")
     add_face(p, positional=False)
-    add_tracker(p)
+    add_tracker(p, synthesis_options=True)
     p.add_argument("--db", metavar="MOTION.npz", help="--tracker synthesis: a motion database from faceanim mocap "
                                                       "build (default: the shipped one)")
     p.add_argument("--raw", action="store_true", default=None,

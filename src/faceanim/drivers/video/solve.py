@@ -49,9 +49,9 @@ FACE_POINTS = np.arange(468)
 # the tongue (no landmark on it)
 UNSOLVED = ("eyeLook", "tongueOut")
 SIGMA = 1e-3  # metres on the generic head: MediaPipe's frame-to-frame jitter at the landmarks
-Z_WEIGHT = 0.5  # depth's weight against x and y
-CONTOUR_WEIGHT = 0.5  # the face oval's weight (its points slide along the silhouette)
-LIP_WEIGHT = 4.0  # the lips' inner line's weight: whether the lips touch is what a viewer sees first
+Z_WEIGHT = 0.2  # depth's weight against x and y
+CONTOUR_WEIGHT = 0.2  # the face oval's weight (its points slide along the silhouette)
+LIP_WEIGHT = 10.0  # the lips' inner line's weight: whether the lips touch is what a viewer sees first
 PRIOR = 20.0  # ridge on the weights: a weight of 1 costs as much as 20 landmark axes off by SIGMA
 TEMPORAL = 20.0  # pull to the previous frame's weights, in the same units
 FROM_SCORES = ("cheekPuff_L", "cheekPuff_R")  # taken from MediaPipe's scores (cheekPuff)
