@@ -1,7 +1,11 @@
 """faceanim live: a clip played in real time to a VMC receiver on 127.0.0.1, against offline perform.
 
     .venv/bin/python benchmarks/bench_live.py ../shared/data [--blas-threads N] [--clips d10,d14]
+        [--tracker solve|synthesis]
     (about 3 minutes: each clip is played in real time, then tracked once more offline)
+
+``--tracker``: the live tracker measured (default ``solve``: :class:`LiveSolver` against offline
+``solve_performance``; ``synthesis``: :class:`LivePerformer` against offline ``perform``).
 
 Per talking-head clip (``talking-head-videos/``), the clip is played at its own frame rate by
 ``ClipSource`` (frame i captured at start + i / fps, newest frame only) through ``run_live`` to a
@@ -45,11 +49,11 @@ from faceanim.drivers.video.tracking import FaceTracker, track_frames
 from faceanim.standards.arkit import ARKIT_NAMES
 from faceanim.io.files import native_stderr_quiet
 from faceanim.io.video import video_frames, video_info
-from faceanim.live.performer import LivePerformer
+from faceanim.live.performer import LivePerformer, LiveSolver
 from faceanim.live.pipeline import run_live
 from faceanim.live.sinks import parse_sinks
 from faceanim.live.sources import ClipSource
-from faceanim.perform import arkit_curves, default_database, perform
+from faceanim.perform import arkit_curves, default_database, perform, solve_performance
 
 CLIPS = ("d0", "d3", "d9", "d10", "d14", "d18")
 VISEMES = {"closed": "P B M", "labiodental": "F V", "rounded": "UW OW AO W UH OY R ER", "open": "AA AE AH AW AY",
@@ -185,20 +189,29 @@ def browser_table(clip) -> None:
 def main() -> None:
     args = arguments(__doc__, "the shared data folder (../shared/data)",
                      extra=[("--clips", {"default": ",".join(CLIPS), "help": "clips to play, comma-separated "
-                                                                             "(none: the sound table only)"})])
+                                                                             "(none: the sound table only)"}),
+                            ("--tracker", {"default": "solve", "choices": ["solve", "synthesis"],
+                                           "help": "the live tracker measured (default: solve)"})])
     blas_threads(args.blas_threads)
-    header("faceanim live: clips played in real time to VMC on 127.0.0.1")
+    header(f"faceanim live ({args.tracker}): clips played in real time to VMC on 127.0.0.1")
     folder = args.data / "talking-head-videos"
     db = default_database()
+    solve = args.tracker == "solve"
+
+    def live_tracker():
+        return LiveSolver() if solve else LivePerformer(db)
+
+    def offline(tracking):
+        return arkit_curves(solve_performance(tracking) if solve else perform(tracking, db), db)
 
     t0 = time.perf_counter()
-    _, kept, peak = traced(lambda: LivePerformer(db))
+    _, kept, peak = traced(live_tracker)
     t_build = time.perf_counter() - t0
     t0 = time.perf_counter()
     with native_stderr_quiet(), FaceTracker() as tr:
         tr(np.zeros((64, 64, 3), dtype=np.uint8))
         t_first = time.perf_counter() - t0
-    print(f"cold: live performer built in {fmt_time(t_build)} (retained {fmt_bytes(kept)}, peak {fmt_bytes(peak)}); "
+    print(f"cold: live {args.tracker} built in {fmt_time(t_build)} (retained {fmt_bytes(kept)}, peak {fmt_bytes(peak)}); "
           f"MediaPipe's first frame {fmt_time(t_first)}\n")
 
     rows, compute_rows = [], []
@@ -208,7 +221,7 @@ def main() -> None:
         server, count = receiver()
         port = server.server_address[1]
         report = run_live(ClipSource(clip), parse_sinks([f"vmc://127.0.0.1:{port}"], info.fps, "bench"),
-                          LivePerformer(db), keep_samples=True)
+                          live_tracker(), keep_samples=True)
         time.sleep(0.2)
         server.shutdown()
         server.server_close()
@@ -218,24 +231,28 @@ def main() -> None:
         tracking = track_frames(frames, info.fps)
         t_track = (time.perf_counter() - t0) / len(frames)
         t0 = time.perf_counter()
-        offline = arkit_curves(perform(tracking, db), db)
+        offline_curves = offline(tracking)
         t_perform = (time.perf_counter() - t0) / len(frames)
         idx = np.array([int(round(s.time * info.fps)) for s in report.samples])
         live = np.array([s.arkit for s in report.samples])
         gap = tracking.inner_gap
         lat = np.array(report.latency) * 1000
-        r_live, r_off = jaw_r(live, gap[idx]), jaw_r(offline, gap)
+        r_live, r_off = jaw_r(live, gap[idx]), jaw_r(offline_curves, gap)
         rows.append([name, f"{info.fps:g}", str(report.processed), f"{report.fps:.1f}",
                      f"{100 * report.dropped / max(report.captured, 1):.1f}%",
                      f"{np.percentile(lat, 50):.0f}", f"{np.percentile(lat, 95):.0f}", str(count["apply"]),
                      f"{r_live:.3f}", f"{r_off:.3f}", f"{r_live - r_off:+.3f}"])
         # the live step alone, warm, on this clip's landmarks
-        lp = LivePerformer(db)
+        lp = live_tracker()
         with native_stderr_quiet(), FaceTracker() as tr:
-            marks = [tr(f) for f in frames]
+            found = [tr.detect(f, i / info.fps) for i, f in enumerate(frames)]
         t0 = time.perf_counter()
-        for i, lm in enumerate(marks):
-            lp.step(lm, i / info.fps)
+        for i, fd in enumerate(found):
+            lm = None if fd is None else fd.landmarks
+            if solve:
+                lp.step(lm, i / info.fps, None if fd is None else fd.blendshapes)
+            else:
+                lp.step(lm, i / info.fps)
         t_step = (time.perf_counter() - t0) / len(frames)
         compute_rows.append([name, fmt_time(t_track), fmt_time(t_step), fmt_time(t_perform),
                              f"{t_step / t_perform:.2f}x"])

@@ -231,6 +231,18 @@ def performance_curves(tracking, tracker: str, settings=None):
 
     if tracker == "solve":
         return solve_performance(tracking, settings)
+    if tracker == "live":  # the live solve, causal, stepped on every frame (drops: benchmarks/bench_live.py)
+        from faceanim.live.performer import LiveSolver
+        from faceanim.perform import Performance
+
+        live = LiveSolver(settings)
+        samples = []
+        for k in range(tracking.n_frames):
+            ok = bool(tracking.tracked[k])
+            samples.append(live.step(tracking.landmarks[k] if ok else None, k / tracking.fps,
+                                     tracking.scores[k] if ok else None))
+        return Performance(tracking.fps, np.array([x.arkit for x in samples]), np.zeros((tracking.n_frames, 6)),
+                           tracking.tracked.copy(), {"tracker": "live"}, tracker="solve")
     if tracker == "mediapipe":
         return mediapipe_performance(tracking)
     return perform(tracking, default_database())
@@ -298,8 +310,9 @@ def main(argv=None) -> None:
                    "or a head from photos")
     p.add_argument("--sheets", type=Path, help="write a contact sheet per clip into this folder (the video "
                    "beside the avatar at its deepest blink, widest and most rounded mouth, and a still moment)")
-    p.add_argument("--tracker", default="solve", help="solve, synthesis or mediapipe, or several, comma-separated "
-                   "(each on the same clips, the same avatar and the same judge)")
+    p.add_argument("--tracker", default="solve", help="solve, live (the live solve, causal, on every frame), synthesis "
+                   "or mediapipe, or several, comma-separated (each on the same clips, the same avatar and the same "
+                   "judge)")
     p.add_argument("--cache", type=Path, help="keep the judge's measures of each clip and its tracking here")
     args = p.parse_args(argv)
     face = Face.load(args.face) if args.face else Face.default()

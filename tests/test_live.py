@@ -158,20 +158,34 @@ def test_synthesis_stream_gives_the_offline_frames(overlap):
 
 
 # -- the live performer against the offline path, on a real clip ------------------------------------
-@pytest.fixture(scope="module")
-def d18_live_and_offline():
+@pytest.fixture(scope="module", params=["solve", "synthesis"])
+def d18_live_and_offline(request):
+    """d18 live (each frame tracked and stepped as it comes) and offline, by the ARKit solve
+    (:class:`LiveSolver`, :func:`solve_performance`) and by Chai et al.'s synthesis
+    (:class:`LivePerformer`, :func:`perform`)."""
     from faceanim.drivers.video.tracking import FaceTracker, track_video
     from faceanim.io.video import video_frames, video_info
-    from faceanim.live.performer import LivePerformer
-    from faceanim.perform import arkit_curves, default_database, perform
+    from faceanim.live.performer import LivePerformer, LiveSolver
+    from faceanim.perform import arkit_curves, default_database, perform, solve_performance
 
     clip = CLIPS / "d18.mp4"
+    if not clip.is_file():
+        pytest.skip("../shared/data/talking-head-videos is not here")
     info = video_info(clip)
-    lp = LivePerformer()
+    samples = []
     with FaceTracker() as tracker:
-        samples = [lp.step(tracker(f), i / info.fps) for i, f in enumerate(video_frames(info))]
+        if request.param == "solve":
+            lp = LiveSolver()
+            for i, f in enumerate(video_frames(info)):
+                found = tracker.detect(f, i / info.fps)
+                samples.append(lp.step(None if found is None else found.landmarks, i / info.fps,
+                                       None if found is None else found.blendshapes))
+        else:
+            lp = LivePerformer()
+            samples = [lp.step(tracker(f, i / info.fps), i / info.fps) for i, f in enumerate(video_frames(info))]
     tracking = track_video(clip)
-    return samples, tracking, arkit_curves(perform(tracking), default_database())
+    offline = solve_performance(tracking) if request.param == "solve" else perform(tracking)
+    return samples, tracking, arkit_curves(offline, default_database())
 
 
 @needs_clips
