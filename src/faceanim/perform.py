@@ -446,7 +446,8 @@ def solve_performance(tracking: Tracking, settings=None, smooth_head: bool = Tru
     """The performance as ARKit's 52 curves solved per frame on the generic head's own shapes
     (:mod:`faceanim.drivers.video.solve`): the performer's neutral from the whole clip (or
     ``calibration``), each tracked frame solved in order (the temporal term is causal), blinks
-    and gaze read off the lids and irises (:func:`blink_curves`, :func:`look_curves`),
+    and gaze read off the lids and irises (:func:`blink_curves`, :func:`look_curves`; the solve's
+    own ``eyeBlink`` where larger: the small closures under the blinks' dead zone),
     ``cheekPuff`` from MediaPipe's scores. Lost faces hold, then ease to rest, as
     :func:`perform`."""
     from faceanim.drivers.video.solve import Solver, calibrate, head_frame, to_arkit
@@ -470,7 +471,9 @@ def solve_performance(tracking: Tracking, settings=None, smooth_head: bool = Tru
     solved = hold_untracked(solved, tracking.tracked)
     scores = None if tracking.scores is None else hold_untracked(tracking.scores, tracking.tracked)
     curves = to_arkit(solved, scores)
-    blinks = blink_curves(tracking)
+    # the lids: the performer's own closure (blink_curves: a blink shuts the eye whatever MediaPipe's
+    # lids do), or the solve's eyeBlink where it is larger (the small closures the dead zone drops)
+    blinks = np.maximum(blink_curves(tracking), curves[:, _eye_columns()[:2]])
     curves[:, _eye_columns()] = np.hstack([blinks, look_curves(tracking, blinks)])
     curves *= lost_face_fade(tracking.tracked, tracking.fps)[:, None]
     return Performance(tracking.fps, curves, _head_pose(tracking, smooth_head), tracking.tracked.copy(),

@@ -311,7 +311,8 @@ class LiveSolver(LivePerformer):
 
     def _compose(self, face: np.ndarray, blinks: np.ndarray, looks: np.ndarray) -> np.ndarray:
         out = np.array(face, dtype=np.float64)
-        out[_EYE_COLUMNS] = np.r_[blinks, looks]
+        # as offline (solve_performance): the solve's own eyeBlink where larger than the lids' closure
+        out[_EYE_COLUMNS] = np.r_[np.maximum(blinks, out[_EYE_COLUMNS[:2]]), looks]
         return out
 
     def _arkit(self, weights: np.ndarray) -> np.ndarray:

@@ -1,0 +1,205 @@
+"""The ARKit solve per frame (faceanim.drivers.video.solve) against oracles: weights put into the
+generic head's own landmark model and read back through an unknown similarity, scipy's bounded
+least squares on the whole stacked problem, a sampled ICT identity's neutral recovered by the
+calibration, and a real clip's lips; the MediaPipe adapter's model check and the --tracker CLI."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from faceanim.drivers.video import solve as S
+from faceanim.face.generic_head import generic_head
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+VIDEOS = DATA / "talking-head-videos"
+
+
+def _rotation(yaw, pitch, roll):
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_euler("yxz", [yaw, pitch, roll], degrees=True).as_matrix()
+
+
+def _as_mediapipe(points_head: np.ndarray, s: float, r: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Head-frame points (metres) seen by a camera: similarity, then MediaPipe's pixels (y down, z away)."""
+    q = s * points_head @ r.T + t
+    return q * np.array([1.0, -1.0, -1.0])
+
+
+def _frame(weights: dict, identity=None):
+    """478 landmarks of the generic head (its identity ``identity``) with ``weights`` on its shapes."""
+    head = generic_head()
+    v = head.identity(identity) if identity is not None else head.mesh.vertices.copy()
+    for name, w in weights.items():
+        v = v + w * head.shape(name)
+    return head.landmarks(v)
+
+
+def test_weights_put_in_come_back_through_an_unknown_pose():
+    """Oracle: the model itself. Landmarks made from known weights, turned, scaled and moved as a
+    camera would see them, solve back to those weights (within 0.03; the prior shrinks them a
+    little), every other shape near 0."""
+    head = generic_head()
+    names = S.solved_shapes(head)
+    truth = {"jawOpen": 0.45, "mouthSmile_L": 0.6, "mouthSmile_R": 0.55, "browInnerUp_L": 0.5, "browInnerUp_R": 0.5,
+             "eyeBlink_R": 0.7}
+    neutral = head.landmarks()
+    solver = S.Solver(neutral, S.SolverSettings(temporal=0.0, prior=1.0))
+    q = _as_mediapipe(_frame(truth), 2400.0, _rotation(14, -6, 4), np.array([300.0, -250.0, -40.0]))
+    e = solver.solve(S.camera_points(q))
+    got = dict(zip(names, e))
+    for name, w in truth.items():
+        assert abs(got[name] - w) < 0.03, (name, got[name], w)
+    others = [n for n in names if n not in truth]
+    assert max(got[n] for n in others) < 0.05, sorted(((got[n], n) for n in others), reverse=True)[:3]
+    # the performer at rest: all zero
+    assert np.abs(solver.solve(S.camera_points(_as_mediapipe(neutral, 2400.0, _rotation(-20, 5, 0),
+                                                             np.zeros(3))))).max() < 1e-6
+
+
+def test_the_bounded_solve_is_scipys_on_the_whole_stacked_problem():
+    """Oracle: scipy.optimize.lsq_linear on every row at once: the data's 1,404 rows with the
+    expression's 45 columns and the pose change's 7 (scale, rotation, shift about the frame's
+    points), the prior's rows and the temporal term's. The solve's weights, found on a 52 x 52
+    triangle, are scipy's; some are at their bounds (a shape asked beyond 1, a smile the other
+    way)."""
+    from scipy.optimize import lsq_linear
+
+    head = generic_head()
+    settings = S.SolverSettings(prior=20.0, temporal=20.0)
+    neutral = head.landmarks()
+    solver = S.Solver(neutral, settings)
+    rng = np.random.default_rng(3)
+    previous = rng.uniform(0, 0.3, solver.n_shapes)
+    solver.previous = previous.copy()
+    frame = _frame({"jawOpen": 1.4, "mouthSmile_L": -0.5, "mouthPucker": 0.5}) + rng.normal(0, 4e-4, (478, 3))
+    y = S.camera_points(_as_mediapipe(frame, 1.0, _rotation(3, 2, -1), np.array([0.001, 0.0, 0.002])))
+    got = solver._joint(y)
+
+    p = y[S.FACE_POINTS]
+    w = np.sqrt(S.point_weights(settings.z_weight, settings.contour, settings.lips)) / S.SIGMA
+    a = (S._deltas(head) * w[..., None]).reshape(-1, solver.n_shapes)
+    cross = np.stack([np.cross(np.eye(3)[k], p) for k in range(3)], axis=-1)  # -(omega x p) per omega axis
+    pose = np.concatenate([-p[..., None], -cross, -np.broadcast_to(np.eye(3), (len(p), 3, 3))], axis=-1)
+    ap = (pose * w[..., None]).reshape(-1, 7)
+    n = solver.n_shapes
+    rows = np.vstack([np.hstack([a, ap]),
+                      np.hstack([np.sqrt(settings.prior) * np.eye(n), np.zeros((n, 7))]),
+                      np.hstack([np.sqrt(settings.temporal) * np.eye(n), np.zeros((n, 7))])])
+    rhs = np.r_[((p - neutral[S.FACE_POINTS]) * w).ravel(), np.zeros(n), np.sqrt(settings.temporal) * previous]
+    ref = lsq_linear(rows, rhs, bounds=(np.r_[np.zeros(n), np.full(7, -np.inf)], np.r_[np.ones(n), np.full(7, np.inf)]),
+                     method="bvls").x[:n]
+    names = S.solved_shapes(head)
+    assert ref[names.index("jawOpen")] == pytest.approx(1.0) and ref[names.index("mouthSmile_L")] == 0.0
+    np.testing.assert_allclose(got, ref, atol=1e-5)
+
+
+def test_calibration_finds_a_sampled_identitys_neutral():
+    """Oracle: a fresh ICT identity (standard normal weights, seed 11) talking: a third of its
+    frames at rest, the others with the jaw open and a smile, each seen in another pose. The
+    calibration's neutral is that identity's own landmarks (every face point within 0.3 mm once
+    the pose is taken out), and the talking frames solve to their jaw and smile."""
+    from faceanim.drivers.video.tracking import rigid_landmarks
+    from faceanim.face.frame import similarity
+
+    head = generic_head()
+    rng = np.random.default_rng(11)
+    identity = rng.normal(size=head.n_identity)
+    rest = _frame({}, identity)
+    frames, truth = [], []
+    for k in range(60):
+        w = {} if k % 3 == 0 else {"jawOpen": rng.uniform(0.1, 0.5), "mouthSmile_L": rng.uniform(0, 0.6)}
+        pose = (1800 + 50 * rng.normal(), _rotation(*rng.normal(0, 8, 3)), rng.normal(0, 30, 3))
+        frames.append(_as_mediapipe(_frame(w, identity), *pose))
+        truth.append(w)
+    ref, rigid = head.landmarks(), rigid_landmarks()
+    frontal = np.stack([S.head_frame(f, rigid, ref) for f in frames])
+    cal = S.calibrate(frontal)
+    s, r, t = similarity(cal.neutral[S.FACE_POINTS], rest[S.FACE_POINTS])
+    err = np.linalg.norm(s * cal.neutral[S.FACE_POINTS] @ r.T + t - rest[S.FACE_POINTS], axis=1)
+    assert err.max() < 3e-4, err.max()
+    solver = S.Solver(cal.neutral, S.SolverSettings(temporal=0.0))
+    names = S.solved_shapes(head)
+    for f, w in zip(frames, truth):
+        e = dict(zip(names, solver.solve(S.camera_points(f))))
+        assert abs(e["jawOpen"] - w.get("jawOpen", 0.0)) < 0.06
+        assert abs(e["mouthSmile_L"] - w.get("mouthSmile_L", 0.0)) < 0.1
+
+
+def test_to_arkit_names_and_halves():
+    """ARKit's one curve for both halves takes their mean; cheekPuff comes from MediaPipe's score."""
+    from faceanim.face.mediapipe import BLENDSHAPE_NAMES
+    from faceanim.standards.arkit import ARKIT_NAMES
+
+    names = S.solved_shapes()
+    e = np.zeros((1, len(names)))
+    e[0, names.index("browInnerUp_L")], e[0, names.index("browInnerUp_R")] = 0.2, 0.6
+    e[0, names.index("mouthSmile_L")] = 0.7
+    e[0, names.index("cheekPuff_L")] = 0.9  # not used: the score is
+    scores = np.zeros((1, len(BLENDSHAPE_NAMES)))
+    scores[0, BLENDSHAPE_NAMES.index("cheekPuff")] = 0.35
+    out = dict(zip(ARKIT_NAMES, S.to_arkit(e, scores)[0]))
+    assert out["BrowInnerUp"] == pytest.approx(0.4) and out["MouthSmileLeft"] == pytest.approx(0.7)
+    assert out["CheekPuff"] == pytest.approx(0.35) and out["TongueOut"] == 0.0 and out["MouthSmileRight"] == 0.0
+
+
+@pytest.mark.skipif(not (VIDEOS / "d18.mp4").is_file(), reason="../shared/data/talking-head-videos is not here")
+def test_a_real_jaw_drop_and_closed_lips():
+    """d18 (216 frames, a yawn): the solved jawOpen follows the performer's inner lip gap (r > 0.95,
+    MediaPipe's own jawOpen score 0.9 or less on the same frames), and the frames with the lips
+    together (gap under 1 mm) have the jaw nearly shut."""
+    from faceanim.drivers.video.tracking import track_video
+    from faceanim.face.mediapipe import BLENDSHAPE_NAMES
+    from faceanim.perform import solve_performance
+    from faceanim.standards.arkit import ARKIT_NAMES
+
+    tr = track_video(VIDEOS / "d18.mp4")
+    perf = solve_performance(tr)
+    jaw = perf.weights[:, ARKIT_NAMES.index("JawOpen")] - perf.weights[:, ARKIT_NAMES.index("MouthClose")]
+    gap = tr.inner_gap
+    r_solve = np.corrcoef(jaw, gap)[0, 1]
+    r_scores = np.corrcoef(tr.scores[:, BLENDSHAPE_NAMES.index("jawOpen")], gap)[0, 1]
+    assert r_solve > 0.95 and r_solve > r_scores, (r_solve, r_scores)
+    shut = gap < 1e-3
+    assert shut.sum() > 20 and np.median(jaw[shut]) < 0.1
+    assert perf.weights.min() >= 0.0 and perf.weights.max() <= 1.0
+
+
+def test_a_damaged_model_is_one_line(monkeypatch):
+    """A shipped model whose bytes do not match its SHA-256 is refused naming the file and the fix."""
+    from faceanim.errors import LandmarkError
+    from faceanim.face import mediapipe as M
+
+    M.model_bytes.cache_clear()
+    monkeypatch.setitem(M.MODELS, "face_landmarker.task", "0" * 64)
+    try:
+        with pytest.raises(LandmarkError, match="face_landmarker.task is missing or damaged; reinstall faceanim"):
+            M.FaceMesh()
+    finally:
+        M.model_bytes.cache_clear()
+
+
+@pytest.mark.skipif(not (VIDEOS / "d0.mp4").is_file(), reason="../shared/data/talking-head-videos is not here")
+def test_tracker_options(tmp_path, capsys):
+    """--tracker mediapipe writes MediaPipe's scores as the take; an option of the synthesis with
+    another tracker is one line, exit 2, no file."""
+    from faceanim.cli import main
+    from faceanim.drivers.video.tracking import track_video
+    from faceanim.face.mediapipe import BLENDSHAPE_NAMES
+    from faceanim.io.arkit_csv import read_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
+
+    out = tmp_path / "mp.csv"
+    assert main(["perform", str(VIDEOS / "d0.mp4"), "--tracker", "mediapipe", "--quiet", "-o", str(out)]) == 0
+    take = read_arkit_csv(out)
+    tr = track_video(VIDEOS / "d0.mp4")
+    k = ARKIT_NAMES.index("JawOpen")
+    np.testing.assert_allclose(take.weights[:, k], tr.scores[:, BLENDSHAPE_NAMES.index("jawOpen")], atol=1e-5)
+    capsys.readouterr()
+    bad = tmp_path / "bad.csv"
+    assert main(["perform", str(VIDEOS / "d0.mp4"), "--tracker", "solve", "--window", "5", "-o", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--window belongs to Chai et al.'s motion synthesis" in err[0] and not bad.exists()
