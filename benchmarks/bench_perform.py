@@ -8,11 +8,12 @@ Video: ``talking-head-videos/d3.mp4`` (354 frames, 512 x 512). Target: the ICT h
 ``ict-facekit/`` (26,719 vertices, its landmarks detected); the default face (24,591) without the data.
 
 1. Per frame, streaming (each stage timed over the whole clip, per frame): decoding, tracking
-   (MediaPipe face mesh + pose + 15 controls), filtering and synthesis as ``perform`` does it
+   (MediaPipe's Face Landmarker + pose + 15 controls), filtering and synthesis as ``perform`` does it
    (feature-wise: two segment queries per frame, W = 5, K = 30 nearest by k-d tree, graph or
    brute force, local PCA, blend), and retargeting (the 2L basis weights, lower and upper
    face, blended into all vertices: one sparse (3V, 2L) x (2L,) product). End to end = the sum
-   (rendering excluded); frames per second = 1 / that.
+   (rendering excluded); frames per second = 1 / that. 1b: the same for the ARKit solve
+   (``perform``'s default): the solve per frame, and the target's 52 ARKit shapes blended.
 2. Retargeting at run time, single frame and 100-frame batch, warm:
    - baseline: per-vertex transfer at run time (expression cloning as the paper describes it):
      the frame's motion on the source head (its shapes weighted, lower and upper face), interpolated
@@ -78,6 +79,28 @@ def main() -> None:
                  "frames/s", "frames/s without decoding"],
           title=f"\n1. Per frame over {len(frames)} frames of {video.name}; target {face.mesh.n_vertices} vertices, "
                 f"L = {db.n_bases} bases")
+
+    # 1b. the ARKit solve (perform's default): per frame, and its 52 shapes blended on the target
+    from faceanim.perform import solve_performance
+    from faceanim.rig.arkit import arkit_rig
+
+    t0 = time.perf_counter()
+    solved = solve_performance(tr)
+    t_solve = (time.perf_counter() - t0) / len(frames)
+    t0 = time.perf_counter()
+    arig, _ = arkit_rig(face)
+    t_arkit_bind = time.perf_counter() - t0
+    one_arkit = solved.weights[len(frames) // 2][None]
+    t_arkit_blend = best(lambda: arig.deformer.apply_blendshapes(one_arkit), repeat=30)
+    rows = []
+    for label, t_make, t_b in (("solve (ARKit, default)", t_solve, t_arkit_blend),
+                               ("synthesis (k-d tree)", synth["kdtree"], t_blend)):
+        total = t_decode + t_track + t_make + t_b
+        rows.append([label, fmt_time(t_track), fmt_time(t_make), fmt_time(t_b), fmt_time(total), f"{1 / total:.0f}",
+                     f"{1 / (total - t_decode):.0f}"])
+    table(rows, ["tracker", "track (MediaPipe)", "curves", "blend on the target", "end to end", "frames/s",
+                 "frames/s without decoding"],
+          title=f"\n1b. The trackers per frame (the same tracking); the ARKit rig's bind {fmt_time(t_arkit_bind)}")
 
     # 2. run-time retargeting: per-vertex transfer vs blended bases
     head = generic_head()

@@ -2,7 +2,7 @@
 
 For each talking-head clip, ``faceanim perform``'s avatar (the default face) is rendered from the
 front frame by frame, and the same measurements are taken on the video and on the renders, by the
-same code: MediaPipe's face mesh (video mode), the head's pose taken out (a similarity onto the
+same code: MediaPipe's Face Landmarker (video mode), the head's pose taken out (a similarity onto the
 generic head's landmarks that no expression moves, as tracking does), then per frame, in the
 generic head's units:
 
@@ -27,8 +27,13 @@ the performer's, relative to each one's median, both floored at 5%: the goal is 
 Clips d0, d3, d9 are the tuning set, d10, d14, d18 the held-out set (``--clips`` to choose);
 the summary gives the median of each figure over each set.
 
+Each ``--tracker`` (solve, live, mediapipe, synthesis; several comma-separated) makes the curves
+from the same tracking and plays them on the same avatar; the summary gives per set the median and
+the worst clip of: lip r, lip range, width r, blink depth (the avatar's deepest closure over the
+performer's), eye r, brow r, smile r, round r, gaze x r, gaze y r.
+
 Usage (from /work/main): ``python scripts/eval_motion.py ../shared/data [--clips d10,d14] [--size 512]
-[--sheets DIR] [--face MESH]`` (``--face``: another avatar than the default face; ``--sheets``: a
+[--sheets DIR] [--face MESH] [--tracker solve,mediapipe] [--cache DIR]`` (``--face``: another avatar than the default face; ``--sheets``: a
 contact sheet per clip, the video beside the avatar at the deepest blink, the widest and the most
 rounded open mouth, and a still moment)
 """
@@ -185,8 +190,10 @@ def sheet_frames(perf: np.ndarray) -> dict[str, int]:
     return out
 
 
-def write_sheet(path: Path, video: Path, chosen: dict[str, int], renders: dict, height: int = 256) -> None:
-    """One row per chosen frame: the video frame beside the avatar's render, labelled."""
+def write_sheet(path: Path, video: Path, chosen: dict[str, int], renders, height: int = 256,
+                labels: tuple = ()) -> None:
+    """One row per chosen frame: the video frame beside the avatar's render (``renders`` a dict
+    frame -> image, or a list of such dicts: one avatar column each, headed by ``labels``)."""
     import cv2
     import imageio.v3 as iio
 
@@ -198,12 +205,18 @@ def write_sheet(path: Path, video: Path, chosen: dict[str, int], renders: dict, 
             want[k] = img
         if all(v is not None for v in want.values()):
             break
+    columns = renders if isinstance(renders, list) else [renders]
     rows = []
     for label, k in chosen.items():
-        v, a = want[k], renders[k]
+        v = want[k]
         v = cv2.resize(v, (int(round(v.shape[1] * height / v.shape[0])), height), interpolation=cv2.INTER_AREA)
-        a = cv2.resize(a, (height, height), interpolation=cv2.INTER_AREA)
-        row = np.hstack([v, a]).copy()
+        avatars = []
+        for c, col in enumerate(columns):
+            a = cv2.resize(col[k], (height, height), interpolation=cv2.INTER_AREA).copy()
+            if c < len(labels):
+                cv2.putText(a, labels[c], (8, height - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 0), 2)
+            avatars.append(a)
+        row = np.hstack([v, *avatars]).copy()
         cv2.putText(row, f"{label} (frame {k})", (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 0), 2)
         rows.append(row)
     width = max(r.shape[1] for r in rows)
@@ -286,9 +299,10 @@ def run_clip(path: Path, face, size: int, sheets: Path | None = None, tracker: s
     chosen = sheet_frames(perf_m) if sheets else {}
     renders = {k: None for k in chosen.values()}
     av_m, neutral = measure_avatar(face, frames(), size, renders)
+    fig = figures(perf_m, av_m, neutral)
     if sheets:
         write_sheet(sheets / f"{path.stem}_{tracker}.png", path, chosen, renders)
-    fig = figures(perf_m, av_m, neutral)
+        fig["sheet"] = (chosen, renders)
     fig["frames"] = len(perf_m)
     fig["series"] = (perf_m, av_m)
     fig["seconds"] = time.perf_counter() - t
@@ -328,6 +342,10 @@ def main(argv=None) -> None:
                                                   rig_cache=rig_cache)
             print(f"{name} {tracker}: {f['frames']} frames, {f['seconds']:.0f} s; " + ", ".join(
                 f"{k} {fmt(v)}" for k, v in summary_row(f).items()), flush=True)
+        if args.sheets and len(trackers) > 1:  # the performer beside every tracker's avatar
+            chosen = results[trackers[0]][name]["sheet"][0]
+            write_sheet(args.sheets / f"{name}.png", path, chosen,
+                        [results[t][name]["sheet"][1] for t in trackers], labels=tuple(trackers))
     for tracker in trackers:
         print(f"\n### {tracker}\n")
         print("| clip | set | " + " | ".join(SUMMARY) + " |")

@@ -461,7 +461,7 @@ def solve_performance(tracking: Tracking, settings=None, smooth_head: bool = Tru
         raise FaceAnimError("no face was found in any frame of the video; give a video where the face is seen")
     reference, rigid = generic_head().landmarks(), rigid_landmarks()
     frontal = np.stack([head_frame(tracking.landmarks[k], rigid, reference) for k in ok])
-    cal = calibration or calibrate(frontal)
+    cal = calibration or calibrate(frontal, scores=None if tracking.scores is None else tracking.scores[ok])
     solver = Solver(cal.neutral, settings)
     from faceanim.drivers.video.solve import camera_points
 

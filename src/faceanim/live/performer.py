@@ -290,14 +290,16 @@ class LiveSolver(LivePerformer):
     def _kept(self, landmarks: np.ndarray):
         from faceanim.drivers.video.solve import head_frame
 
-        return head_frame(landmarks, self.rigid, self.reference).astype(np.float32)
+        frontal = head_frame(landmarks, self.rigid, self.reference).astype(np.float32)
+        return frontal, None if self.scores is None else np.asarray(self.scores, dtype=np.float32)
 
     def _refresh(self) -> None:
         from faceanim.drivers.video.solve import Solver, rest_frames
 
         super()._refresh()
-        frontal = np.array([h[7] for h in self.history], dtype=np.float64)
-        neutral = np.median(frontal[rest_frames(frontal)], axis=0)
+        frontal = np.array([h[7][0] for h in self.history], dtype=np.float64)
+        scores = None if any(h[7][1] is None for h in self.history) else np.array([h[7][1] for h in self.history])
+        neutral = np.median(frontal[rest_frames(frontal, scores=scores)], axis=0)
         if self.solver is None:
             self.solver = Solver(neutral, self.solver_settings)
         else:

@@ -240,45 +240,57 @@ class Calibration:
     frames: int = 0
 
 
-SUBTRACT_REST = False
 REST_EYES = 40  # ... with the eyes at least as open as in this percentile of the frames
 
 
-def rest_frames(frontal: np.ndarray, share: float = REST_SHARE) -> np.ndarray:
-    """Indices of the frames (F, 478, 3, head frame) most like a face at rest: the lips closest
-    together (the inner lips' gap, MediaPipe 13 - 14, in its lowest ``share``) among the frames
+def expressiveness(scores: np.ndarray) -> np.ndarray:
+    """(F,) how far from rest MediaPipe's own scores (F, 51) put each frame: the sum of its scores
+    but the eyes' (blinks and looks: the lids are judged by their opening, the gaze is no
+    expression)."""
+    from faceanim.face.mediapipe import BLENDSHAPE_NAMES
+
+    keep = [k for k, n in enumerate(BLENDSHAPE_NAMES) if not n.startswith(("eyeBlink", "eyeLook"))]
+    return np.nan_to_num(np.asarray(scores, dtype=np.float64)[:, keep]).sum(axis=1)
+
+
+def rest_frames(frontal: np.ndarray, share: float = REST_SHARE, scores: np.ndarray | None = None) -> np.ndarray:
+    """Indices of the frames (F, 478, 3, head frame) most like a face at rest, among the frames
     whose eyes are open (the lids' mean opening at least its :data:`REST_EYES` percentile: no
-    blink, no squint)."""
+    blink, no squint): the lowest ``share`` by the lips' gap (the inner lips, MediaPipe 13 - 14)
+    or, with MediaPipe's ``scores`` (F, 51), by the sum of the gap's rank and the
+    :func:`expressiveness`'s rank (lips together and no smile, no raised brows)."""
     f = np.asarray(frontal, dtype=np.float64)
     gap = f[:, 13, 1] - f[:, 14, 1]
     eyes = 0.5 * ((f[:, 159, 1] - f[:, 145, 1]) + (f[:, 386, 1] - f[:, 374, 1]))
     open_eyes = np.flatnonzero(eyes >= np.percentile(eyes, REST_EYES))
     n = max(1, int(round(share * len(f))))
-    return np.sort(open_eyes[np.argsort(gap[open_eyes], kind="stable")[:n]])
+    key = gap[open_eyes]
+    if scores is not None:
+        from scipy.stats import rankdata
+
+        key = rankdata(key) + rankdata(expressiveness(np.asarray(scores)[open_eyes]))
+    return np.sort(open_eyes[np.argsort(key, kind="stable")[:n]])
 
 
-def calibrate(frontal: np.ndarray, head: GenericHead | None = None) -> Calibration:
-    """The performer's neutral face from (F, 478, 3) tracked frames in the generic head's frame.
+def calibrate(frontal: np.ndarray, head: GenericHead | None = None, scores: np.ndarray | None = None) -> Calibration:
+    """The performer's neutral face from (F, 478, 3) tracked frames in the generic head's frame
+    (``scores``: MediaPipe's (F, 51), to rank the frames by expression too).
 
     The frames most like a face at rest (:func:`rest_frames`) are averaged (the median per
-    point); the one registration's landmark fit (:func:`~faceanim.face.registration.fit_landmarks`:
-    the generic head's identity modes with a prior, its expression shapes bounded and costly)
-    says what of that is expression (a mouth never quite shut, a habitual smile) and that is taken
-    off; the rest, the person's own shape and MediaPipe's own bias on it, is the neutral: a frame
-    like the performer at rest solves to about zero."""
-    from faceanim.face.registration import FACE_POINTS as FIT_POINTS, _landmark_model, fit_landmarks
+    point): that is the neutral, the person's own shape with MediaPipe's own bias on it, so a
+    frame like the performer at rest solves to about zero. Taking off what the one
+    registration's landmark fit calls expression in it (a mouth never quite shut) was tried and
+    did not help on the tuning clips (d0, d3, d9), so it is not done.
+    The fit (:func:`~faceanim.face.registration.fit_landmarks`) is kept for the record: the
+    identity's weights and what the fitted head left over."""
+    from faceanim.face.registration import fit_landmarks
 
     head = head or generic_head()
     f = np.asarray(frontal, dtype=np.float64)
-    rest_idx = rest_frames(f)
-    rest = np.median(f[rest_idx], axis=0)
-    s, r, t, x, err = fit_landmarks(rest, head)
-    _, basis = _landmark_model(head)
+    rest_idx = rest_frames(f, scores=scores)
+    neutral = np.median(f[rest_idx], axis=0)
+    _, _, _, x, err = fit_landmarks(neutral, head)
     k = head.n_identity
-    expression = basis[..., k:] @ x[k:]  # (468, 3) in the head's frame, at the fit's scale
-    neutral = rest.copy()
-    if SUBTRACT_REST:
-        neutral[FIT_POINTS] -= s * expression @ r.T
     return Calibration(neutral, x[:k], err, len(rest_idx))
 
 
