@@ -450,7 +450,7 @@ def solve_performance(tracking: Tracking, settings=None, smooth_head: bool = Tru
     own ``eyeBlink`` where larger: the small closures under the blinks' dead zone),
     ``cheekPuff`` from MediaPipe's scores. Lost faces hold, then ease to rest, as
     :func:`perform`."""
-    from faceanim.drivers.video.solve import Solver, calibrate, head_frame, to_arkit
+    from faceanim.drivers.video.solve import Solver, calibrate, camera_points, head_frame, to_arkit
     from faceanim.drivers.video.tracking import rigid_landmarks
     from faceanim.face.generic_head import generic_head
 
@@ -463,8 +463,6 @@ def solve_performance(tracking: Tracking, settings=None, smooth_head: bool = Tru
     frontal = np.stack([head_frame(tracking.landmarks[k], rigid, reference) for k in ok])
     cal = calibration or calibrate(frontal, scores=None if tracking.scores is None else tracking.scores[ok])
     solver = Solver(cal.neutral, settings)
-    from faceanim.drivers.video.solve import camera_points
-
     solved = np.zeros((tracking.n_frames, solver.n_shapes))
     for k in ok:
         solved[k] = solver.solve(camera_points(tracking.landmarks[k]))

@@ -22,13 +22,12 @@ weights with the pose's change again.
   works the same offline and live; it is small against the data (about a frame of lag on the
   mouth, measured by ``scripts/eval_motion.py``) and steadies the shapes that trade with each
   other from frame to frame.
-- **The performer's neutral** (:class:`Calibration`): the head frame of each tracked frame (a
-  similarity onto the generic head's landmarks no expression moves), the median of the stillest
-  fifth of the frames so far is the performer's face at rest; the generic head's identity modes
-  are fitted to it (:func:`~faceanim.face.registration.fit_landmarks`, the one registration's
-  landmark stage) and what the morphable head cannot reach is kept as an offset, so the
-  performer's rest gives all-zero curves exactly. Offline, the whole clip calibrates; live, the
-  frames so far, refreshed as they come (:class:`LiveCalibration`).
+- **The performer's neutral** (:func:`calibrate`): each tracked frame in the generic head's frame
+  (a similarity onto its landmarks no expression moves); the median of the frames most like a
+  face at rest (:func:`rest_frames`: eyes open, lips together, MediaPipe's scores low) is the
+  neutral, the person's own shape with MediaPipe's bias on it, so the performer at rest solves to
+  about zero. Offline the whole clip calibrates; live, the frames so far, refreshed as they come
+  (:class:`~faceanim.live.performer.LiveSolver`).
 - **Blinks and gaze** are read off the lids and irises per performer as before
   (:func:`~faceanim.perform.blink_curves`, :func:`~faceanim.perform.look_curves`): MediaPipe's
   lids never close on a closed eye, so a geometric solve alone would leave every blink part open;
@@ -60,7 +59,7 @@ LIP_WEIGHT = 10.0  # the lips' inner line's weight: whether the lips touch is wh
 PRIOR = 20.0  # ridge on the weights: a weight of 1 costs as much as 20 landmark axes off by SIGMA
 TEMPORAL = 20.0  # pull to the previous frame's weights, in the same units
 FROM_SCORES = ("cheekPuff_L", "cheekPuff_R")  # taken from MediaPipe's scores (cheekPuff)
-REST_SHARE = 0.2  # the performer's face at rest: the stillest fifth of the frames
+REST_SHARE = 0.2  # the performer's face at rest: the fifth of the frames most like it
 # MediaPipe's face oval (the silhouette ring)
 FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152,
              148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109)
@@ -117,8 +116,6 @@ class Solver:
     weights (E,); it remembers them for the next frame's temporal term (:meth:`reset` forgets)."""
 
     def __init__(self, neutral: np.ndarray, settings: SolverSettings | None = None, head: GenericHead | None = None):
-        from scipy.linalg import cho_factor
-
         from faceanim.drivers.video.tracking import rigid_landmarks
 
         self.head = head or generic_head()
@@ -135,8 +132,6 @@ class Solver:
         # 1 cost as much as one landmark off by SIGMA along one axis
         gram = a.T @ a + np.eye(e) * (self.settings.prior + self.settings.temporal)
         self._gram = gram
-        self._cho = cho_factor(gram, lower=False)
-        self._upper = np.triu(self._cho[0])
         self._pull = self.settings.temporal
         self._point_w = point_weights(self.settings.z_weight, self.settings.contour, self.settings.lips)[:, 0]
         self.previous = np.zeros(e)
@@ -147,19 +142,6 @@ class Solver:
 
     def reset(self) -> None:
         self.previous = np.zeros(self.n_shapes)
-
-    def _weights(self, y: np.ndarray) -> np.ndarray:
-        """The weights for frame points ``y`` (head frame) with the pose as given."""
-        from scipy.linalg import cho_solve, solve_triangular
-        from scipy.optimize import lsq_linear
-
-        b = ((y[FACE_POINTS] - self.neutral[FACE_POINTS]) * self._sw).ravel()
-        h = self._a.T @ b + self._pull * self.previous
-        e = cho_solve(self._cho, h)
-        if e.min() < 0.0 or e.max() > 1.0:
-            rhs = solve_triangular(self._upper, h, trans="T")
-            e = lsq_linear(self._upper, rhs, bounds=(0.0, 1.0), method="bvls").x
-        return e
 
     def _joint(self, y: np.ndarray) -> np.ndarray:
         """The weights for frame points ``y`` (head frame) solved together with a small change of
@@ -241,6 +223,7 @@ class Calibration:
 
 
 REST_EYES = 40  # ... with the eyes at least as open as in this percentile of the frames
+REST_EYES_NEAR = 0.9  # ... or as open as this share of their median (eyes that hardly vary: all frames)
 
 
 def expressiveness(scores: np.ndarray) -> np.ndarray:
@@ -255,14 +238,15 @@ def expressiveness(scores: np.ndarray) -> np.ndarray:
 
 def rest_frames(frontal: np.ndarray, share: float = REST_SHARE, scores: np.ndarray | None = None) -> np.ndarray:
     """Indices of the frames (F, 478, 3, head frame) most like a face at rest, among the frames
-    whose eyes are open (the lids' mean opening at least its :data:`REST_EYES` percentile: no
-    blink, no squint): the lowest ``share`` by the lips' gap (the inner lips, MediaPipe 13 - 14)
-    or, with MediaPipe's ``scores`` (F, 51), by the sum of the gap's rank and the
-    :func:`expressiveness`'s rank (lips together and no smile, no raised brows)."""
+    whose eyes are open (the lids' mean opening at least its :data:`REST_EYES` percentile or
+    :data:`REST_EYES_NEAR` of its median, whichever is lower: no blink, no squint, but a face
+    whose lids hardly move keeps its frames): the lowest ``share`` by the lips' gap (the inner
+    lips, MediaPipe 13 - 14) or, with MediaPipe's ``scores`` (F, 51), by the sum of the gap's rank
+    and the :func:`expressiveness`'s rank (lips together and no smile, no raised brows)."""
     f = np.asarray(frontal, dtype=np.float64)
     gap = f[:, 13, 1] - f[:, 14, 1]
     eyes = 0.5 * ((f[:, 159, 1] - f[:, 145, 1]) + (f[:, 386, 1] - f[:, 374, 1]))
-    open_eyes = np.flatnonzero(eyes >= np.percentile(eyes, REST_EYES))
+    open_eyes = np.flatnonzero(eyes >= min(np.percentile(eyes, REST_EYES), REST_EYES_NEAR * np.median(eyes)))
     n = max(1, int(round(share * len(f))))
     key = gap[open_eyes]
     if scores is not None:
