@@ -129,6 +129,30 @@ def test_calibration_finds_a_sampled_identitys_neutral():
         assert abs(e["mouthSmile_L"] - w.get("mouthSmile_L", 0.0)) < 0.1
 
 
+def test_rest_frames_are_the_face_at_rest_whatever_the_lids_drift():
+    """0.7 s at rest, then the jaw held open with the lids a hair wider (MediaPipe's smoothing does
+    that): the frames taken as rest are the rest frames, by the gap alone and with the scores; a
+    blink among them is left out."""
+    from faceanim.face.mediapipe import BLENDSHAPE_NAMES
+
+    rest, opened = _frame({}), _frame({"jawOpen": 0.5})
+    frames, scores = [], np.zeros((45, len(BLENDSHAPE_NAMES)))
+    for k in range(45):
+        f = (rest if k < 20 else opened).copy()
+        wider = 1.0 + 0.002 * k  # the lids' opening creeps up by 9% over the take
+        for top, bottom in ((159, 145), (386, 374)):
+            mid = 0.5 * (f[top] + f[bottom])
+            f[top], f[bottom] = mid + wider * (f[top] - mid), mid + wider * (f[bottom] - mid)
+        if k == 10:  # a blink while at rest
+            f[[159, 386]] = f[[145, 374]]
+        frames.append(f)
+        scores[k, BLENDSHAPE_NAMES.index("jawOpen")] = 0.0 if k < 20 else 0.5
+    frames = np.array(frames)
+    for sc in (None, scores):
+        picked = S.rest_frames(frames, scores=sc)
+        assert len(picked) == 9 and picked.max() < 20 and 10 not in picked, picked
+
+
 def test_to_arkit_names_and_halves():
     """ARKit's one curve for both halves takes their mean; cheekPuff comes from MediaPipe's score."""
     from faceanim.face.mediapipe import BLENDSHAPE_NAMES
