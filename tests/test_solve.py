@@ -192,6 +192,19 @@ def test_a_real_jaw_drop_and_closed_lips():
     assert perf.weights.min() >= 0.0 and perf.weights.max() <= 1.0
 
 
+@pytest.mark.parametrize("video", [False, True])
+def test_a_landmarker_left_open_exits_without_a_traceback(video):
+    """A library user who never closes a FaceMesh: the interpreter exits with nothing on stderr
+    (MediaPipe's own finaliser, run during teardown, printed a traceback)."""
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\nfrom faceanim.face.mediapipe import FaceMesh\n"
+            f"m = FaceMesh(video={video})\nprint(m(np.zeros((64, 64, 3), np.uint8)))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "None" and r.stderr == "", r.stderr[-400:]
+
+
 def test_a_damaged_model_is_one_line(monkeypatch):
     """A shipped model whose bytes do not match its SHA-256 is refused naming the file and the fix."""
     from faceanim.errors import LandmarkError

@@ -20,6 +20,7 @@ import contextlib
 import hashlib
 import io
 import os
+import weakref
 import zipfile
 from dataclasses import dataclass
 from functools import lru_cache
@@ -94,11 +95,22 @@ def _image(mp, rgb: np.ndarray):
     return mp.Image(image_format=mp.ImageFormat.SRGB, data=img)
 
 
+def _close_quietly(runner) -> None:
+    """Close a MediaPipe runner; at the interpreter's exit its dispatcher may already be shut down
+    (RuntimeError): the process is ending, so the runner is only marked closed, and its own
+    finaliser then has nothing left to do (before, it printed a traceback on stderr)."""
+    with native_stderr_quiet():
+        try:
+            runner.close()
+        except RuntimeError:
+            runner._handle = None
+
+
 @dataclass
 class FaceResult:
     """One face found by the Face Landmarker: ``landmarks`` (478, 3) in pixels (x right, y down, z
-    away from the camera scaled by the image width), ``blendshapes`` (52,) MediaPipe's ARKit
-    scores in :data:`BLENDSHAPE_NAMES` order, ``matrix`` (4, 4) its facial transformation (the
+    away from the camera scaled by the image width), ``blendshapes`` (51,) MediaPipe's ARKit
+    scores in :data:`BLENDSHAPE_NAMES` order (all of ARKit's 52 but tongueOut), ``matrix`` (4, 4) its facial transformation (the
     canonical face model into camera space, centimetres)."""
 
     landmarks: np.ndarray
@@ -132,6 +144,9 @@ class FaceMesh:
         with native_stderr_quiet():
             try:
                 self._fl = vision.FaceLandmarker.create_from_options(options)
+                # closed at the latest when the interpreter exits, before MediaPipe's modules go
+                # (its own finaliser, run during teardown, fails with a traceback on stderr)
+                self._finalizer = weakref.finalize(self, _close_quietly, self._fl)
             except (RuntimeError, ValueError):
                 raise LandmarkError("MediaPipe could not load faceanim's face_landmarker.task; reinstall faceanim "
                                     f"and mediapipe ({INSTALL})") from None
@@ -173,8 +188,7 @@ class FaceMesh:
 
     def close(self) -> None:
         if self._fl is not None:
-            with native_stderr_quiet():
-                self._fl.close()
+            self._finalizer()
             self._fl = None
 
     def __enter__(self):
