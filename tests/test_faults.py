@@ -382,3 +382,20 @@ def test_the_unraisable_hook_hides_a_stop_and_nothing_else():
     other = SimpleNamespace(exc_value=ValueError("a real bug in a finaliser"))
     hook(other)
     assert seen == [other]
+
+
+@pytest.mark.parametrize("verbose", [False, True])
+def test_native_logs_after_the_command_stay_off_its_stderr(tmp_path, verbose):
+    """MediaPipe's graph threads write to file descriptor 2 when they start, also after the block
+    that silenced them was left (a Ctrl-C while a landmarker is made: CI saw its lines come after
+    'interrupted'). The program keeps descriptor 2 on /dev/null for its whole run; its own words
+    still reach stderr, and --verbose lets the native log through."""
+    code = ("import os, sys\nfrom faceanim.cli import main\n"
+            f"rc = main({['--verbose'] * verbose + ['perform', str(tmp_path / 'none.mp4'), '-o', str(tmp_path / 'x.csv')]!r},"
+            " final=True)\nos.write(2, b'I0000 a native log line\\n')\nsys.exit(rc)\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2
+    lines = p.stderr.splitlines()
+    assert lines[0] == f"faceanim perform: error: video '{tmp_path / 'none.mp4'}' does not exist; check the path"
+    assert lines[1:] == (["I0000 a native log line"] if verbose else [])
+    assert not (tmp_path / "x.csv").exists()

@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None, final: bool = False) -> int:
     sys.unraisablehook = _quiet_stops(unraisable)
     try:
         try:
-            return _main(argv)
+            return _main(argv, final)
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, signal.SIG_IGN if final else handler)
@@ -165,7 +165,7 @@ def run() -> None:
     sys.exit(main(final=True))
 
 
-def _main(argv: list[str] | None = None) -> int:
+def _main(argv: list[str] | None = None, final: bool = False) -> int:
     from faceanim.errors import STOPS
 
     argv = _join_axis_values(list(sys.argv[1:] if argv is None else argv))
@@ -173,7 +173,7 @@ def _main(argv: list[str] | None = None) -> int:
     args = build_parser(command).parse_args(argv)
     from faceanim.cli.common import outputs_are_not_inputs, quiet_native_logs
 
-    quiet_native_logs(args.verbose)
+    quiet_native_logs(args.verbose, whole_process=final)
     name = " ".join(x for x in (args.command, getattr(args, "wires_command", None),
                                 getattr(args, "fap_command", None), getattr(args, "mocap_command", None),
                                 getattr(args, "arkit_command", None)) if x)

@@ -240,13 +240,43 @@ def report(paths) -> None:
     print("wrote " + ", ".join(str(p) for p in paths))
 
 
-def quiet_native_logs(verbose: bool) -> None:
-    """MediaPipe and TensorFlow Lite log to stderr from C++; keep that quiet unless --verbose."""
-    if not verbose:
-        os.environ.setdefault("GLOG_minloglevel", "2")
-        os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
-    else:
+def quiet_native_logs(verbose: bool, whole_process: bool = False) -> None:
+    """MediaPipe and TensorFlow Lite log to stderr from C++; keep that quiet unless --verbose.
+
+    ``whole_process`` (the ``faceanim`` program, which ends with its command): file descriptor 2
+    goes to /dev/null for the rest of the run and Python's ``sys.stderr`` writes to a private copy
+    of the terminal's. MediaPipe's graph threads log when they start, also after the block that
+    silenced them was left (a Ctrl-C as a landmarker is made unwinds past it while they run), so
+    silencing descriptor 2 block by block can let a line through after the command's last word."""
+    if verbose:
         os.environ["FACEANIM_VERBOSE"] = "1"
+        return
+    os.environ.setdefault("GLOG_minloglevel", "2")
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
+    if whole_process:
+        _native_stderr_to_devnull()
+
+
+def _native_stderr_to_devnull() -> None:
+    import faulthandler
+
+    try:
+        sys.stderr.flush()
+        own = os.dup(2)
+    except (OSError, AttributeError, ValueError):  # no stderr at all: nothing to keep quiet
+        return
+    try:
+        stream = open(own, "w", encoding=sys.stderr.encoding or "utf-8", errors="backslashreplace",
+                      buffering=1, closefd=True)
+    except (OSError, LookupError):
+        os.close(own)
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 2)
+    os.close(devnull)
+    sys.stderr = stream
+    if faulthandler.is_enabled():  # PYTHONFAULTHANDLER wrote to descriptor 2: keep its dumps visible
+        faulthandler.enable(file=stream, all_threads=True)
 
 
 def own_targets(args, suffix: str) -> bool:
