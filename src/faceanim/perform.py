@@ -58,7 +58,10 @@ IRIS_RADIUS = 0.31  # eye widths the iris offset (MediaPipe's, against the eye's
 #                    (eyeLookOutLeft and eyeLookInRight 0.8: 0.46 and 0.50 rad) and tracked by the Face
 #                    Landmarker moved its irises 0.154 and 0.131 eye widths (radii 0.34 and 0.27; the
 #                    legacy face mesh read 0.10 and 0.13 at 0.46 rad: 0.26)
-GAZE_HOLD = 0.5  # while a lid is closed this far, the iris is not seen: the gaze holds
+GAZE_HOLD = 0.9  # while a lid is closed this far, the iris is not seen: the gaze holds (a look down
+#                 lowers the upper lid: held from half closed, the downward looks were lost; the judge's
+#                 gaze y r on the tuning clip d9 went from 0.91 to 0.94, gaze x 0.90 to 0.92, d0 and d3
+#                 within 0.01; 0.8 and 0.95 measured the same)
 # the mouth's measures the lower face's synthesis is held to (:func:`mouth_measures`): K blended
 # neighbours searched on three controls came out with the lip gap 0.42-0.88 of the performer's and
 # correlated 0.48-0.67 with it on two held-out clips (scripts/eval_motion.py); the synthesised face
