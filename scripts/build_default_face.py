@@ -13,6 +13,10 @@ to 0.02 at the generic head's mouth width (-1 of mouthSmile alone would make a p
 Writes ``src/faceanim/assets/default_head.npz`` (vertices, texture coordinates) and
 ``default_head.png`` (the texture atlas); triangles, parts and landmarks are the generic head's.
 Run it with ``python scripts/build_default_face.py``; the result is committed, users never need it.
+``--mouth-only`` paints the committed atlas's gums and tongue again (``texture.repaint_mouth``)
+and keeps the committed geometry and every other texel: the head was built on MediaPipe's legacy
+face mesh, a whole rebuild on the Face Landmarker moves the face (up to 18 mm) and every figure
+measured on it.
 """
 
 from __future__ import annotations
@@ -35,7 +39,19 @@ NEUTRAL_MOUTH = {"mouthFrown_L": 0.2, "mouthFrown_R": 0.2, "mouthSmile_L": -0.5,
 
 
 def main(argv=None) -> None:
-    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--mouth-only", action="store_true",
+                    help="repaint the committed texture's gums and tongue; keep everything else")
+    args = ap.parse_args(argv)
+    if args.mouth_only:
+        from faceanim.build.texture import repaint_mouth
+        from faceanim.face.default import default_face, default_parts
+
+        m = default_face()
+        texture = repaint_mouth(m.vertices, m.faces, m.uv, m.face_uv, default_parts(), m.texture)
+        Image.fromarray(texture).save(ASSETS / "default_head.png", optimize=True)
+        print(f"default head: gums and tongue repainted, {int((texture != m.texture).any(-1).sum())} texels changed")
+        return
     from skimage import data
 
     from faceanim.build.photo import head_from_photos

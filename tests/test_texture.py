@@ -290,6 +290,37 @@ def test_generic_head_atlas_and_bake(generic):
     assert tx.seam_step(tex, result.split) < 0.6 * tx.seam_step(none.texture, none.split)
 
 
+def test_mouth_interior_lies_in_the_lips_shadow(monkeypatch):
+    """The default face's gums and tongue: painted with today's colours (the committed atlas is
+    what repaint_mouth makes), dark against the same paint at full light by GUMS_LIGHT and
+    TONGUE_LIGHT, the tongue's tip lit, every other texel untouched."""
+    from faceanim.face.default import default_face, default_parts
+
+    m, parts = default_face(), default_parts()
+    now = tx.repaint_mouth(m.vertices, m.faces, m.uv, m.face_uv, parts, m.texture)
+    assert np.array_equal(now, m.texture), "rebuild it: python scripts/build_default_face.py --mouth-only"
+    gums_light, tongue_light = tx.GUMS_LIGHT, tx.TONGUE_LIGHT
+    monkeypatch.setattr(tx, "GUMS_LIGHT", 1.0)
+    monkeypatch.setattr(tx, "TONGUE_LIGHT", 1.0)
+    lit = tx.repaint_mouth(m.vertices, m.faces, m.uv, m.face_uv, parts, m.texture).astype(float)
+    size = m.texture.shape[0]
+    boxes = {}
+    for key in ("gums", "tongue"):
+        u0, v0, u1, v1 = tx.TILES[key]
+        boxes[key] = np.s_[round((1 - v1) * size):round((1 - v0) * size), round(u0 * size):round(u1 * size)]
+    outside = np.ones((size, size), dtype=bool)
+    for box in boxes.values():
+        outside[box] = False
+    assert np.array_equal(lit[outside], m.texture[outside])
+    bright = lit.sum(-1) > 150  # away from uint8 rounding
+    ratio = m.texture.sum(-1) / np.maximum(lit.sum(-1), 1)
+    gums = ratio[boxes["gums"]][bright[boxes["gums"]]]
+    tongue = ratio[boxes["tongue"]][bright[boxes["tongue"]]]
+    assert abs(np.median(gums) - gums_light) < 0.02  # the gums tile is mostly gums
+    assert abs(np.percentile(tongue, 5) - tongue_light) < 0.03
+    assert tongue.max() > 0.8 and np.mean(tongue > 0.5) > 0.01, "the tip at full light"
+
+
 # ----------------------------------------------------------------------------- FaceWarehouse oracle
 def _fit_camera(points, pixels, size):
     """Least-squares scaled orthographic camera from 3D points to pixels (affine, then the

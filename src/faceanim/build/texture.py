@@ -124,6 +124,12 @@ TEETH = (238, 228, 204)
 GUMS = (196, 108, 112)
 TONGUE = (170, 72, 78)
 CAVITY = (72, 26, 30)
+# light that reaches the inside of the mouth between the lips: the gums and the body of the tongue
+# lie in the lips' shadow (a pink mouth interior reads as shut lips to a landmark tracker), the
+# tongue's tip, the part tongueOut brings past the teeth, fades back to full light
+GUMS_LIGHT = 0.4
+TONGUE_LIGHT = 0.3
+TONGUE_TIP = 0.15  # the front fraction of the tongue's depth that fades to full light
 EYE_AXIS = (0.0, 0.0, 1.0)
 
 
@@ -1000,18 +1006,7 @@ def bake(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, face_uv: np.nd
                 phi, psi = _eye_angles(P[sel], eyes[name])
                 colour[sel] = eye_colour(phi, psi, iris)
             elif name in ("teeth", "gums_tongue"):
-                idx = np.asarray(parts[name], dtype=np.int64)
-                zmax, zmin = v[idx, 2].max(), v[idx, 2].min()
-                back = np.clip((zmax - P[sel, 2]) / max(zmax - zmin, 1e-12), 0, 1)
-                shade = (1 - 0.55 * back)[:, None]
-                if name == "teeth":
-                    colour[sel] = np.asarray(TEETH)[None] * shade
-                else:
-                    tongue = _gum_tongue_split(v, idx, np.asarray(parts.get("teeth", []), dtype=np.int64))
-                    is_t = np.zeros(n)
-                    is_t[idx] = tongue
-                    wt = np.einsum("nk,nk->n", pb[sel], is_t[f[pt[sel]]])[:, None]
-                    colour[sel] = (np.asarray(GUMS)[None] * (1 - wt) + np.asarray(TONGUE)[None] * wt) * shade
+                colour[sel] = _mouth_colours(v, f, parts, name, P[sel], pt[sel], pb[sel])
         cav = cavity[pt]
         if cav.any():
             colour[cav] = _cavity_colours(v, f, chart, cavity, corners, out, pt[cav], pb[cav])
@@ -1071,6 +1066,62 @@ def _cavity_colours(v, f, chart, cavity, corners, atlas_img, tris, bary) -> np.n
     d = np.einsum("nk,nk->n", bary, depth[f[tris]])
     a = _smoothstep(d / np.maximum(0.6 * deepest[c], 1e-12))[:, None]
     return rim[c] * (1 - a) + np.asarray(CAVITY, dtype=np.float64)[None] * a
+
+
+def _mouth_colours(v, f, parts, name, points, tris, bary) -> np.ndarray:
+    """Colours of teeth or gums_tongue texels at ``points`` (barycentric ``bary`` in ``tris``):
+    the part's colour darkening towards the back of the mouth, the gums and the tongue's body in
+    the lips' shadow (GUMS_LIGHT, TONGUE_LIGHT) and the tongue's tip lit."""
+    idx = np.asarray(parts[name], dtype=np.int64)
+    zmax, zmin = v[idx, 2].max(), v[idx, 2].min()
+    back = np.clip((zmax - points[:, 2]) / max(zmax - zmin, 1e-12), 0, 1)
+    shade = (1 - 0.55 * back)[:, None]
+    if name == "teeth":
+        return np.asarray(TEETH, dtype=np.float64)[None] * shade
+    tongue = _gum_tongue_split(v, idx, np.asarray(parts.get("teeth", []), dtype=np.int64))
+    is_t = np.zeros(len(v))
+    is_t[idx] = tongue
+    wt = np.einsum("nk,nk->n", bary, is_t[f[tris]])[:, None]
+    tip = np.zeros((len(wt), 1))
+    if tongue.any():
+        tz = v[idx[tongue], 2]
+        front = (points[:, 2] - tz.min()) / max(np.ptp(tz), 1e-12)
+        tip = _smoothstep((front - (1 - TONGUE_TIP)) / TONGUE_TIP)[:, None]
+    light = GUMS_LIGHT * (1 - wt) + (TONGUE_LIGHT + (1 - TONGUE_LIGHT) * tip) * wt
+    return (np.asarray(GUMS)[None] * (1 - wt) + np.asarray(TONGUE)[None] * wt) * shade * light
+
+
+def repaint_mouth(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, face_uv: np.ndarray, parts: dict,
+                  texture: np.ndarray) -> np.ndarray:
+    """A copy of an atlas from :func:`bake` with its gums and tongue tiles painted again (the
+    colours of :func:`_mouth_colours`, the tiles' gaps filled as :func:`bake` fills them); the rest
+    of the atlas is kept texel for texel. For a committed head whose interior colours changed."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    out = np.asarray(texture).astype(np.float64)
+    size = out.shape[0]
+    if out.ndim != 3 or out.shape[1] != size:
+        raise FaceAnimError("the atlas must be a square (size, size, 3) image")
+    if "gums_tongue" not in parts:
+        return np.asarray(texture).copy()
+    _, tlab = _part_labels(len(v), f, parts)
+    mouth = np.flatnonzero(tlab == PART_NAMES.index("gums_tongue"))
+    corners = np.asarray(uv, dtype=np.float64)[np.asarray(face_uv, dtype=np.int64)[mouth]]
+    tri, bary = uv_raster(corners, (size, size), ids=mouth)
+    py, px_ = np.nonzero(tri >= 0)
+    pt = tri[py, px_]
+    pb = bary[py, px_].astype(np.float64)
+    P = np.einsum("nk,nkd->nd", pb, v[f[pt]])
+    out[py, px_, :3] = _mouth_colours(v, f, parts, "gums_tongue", P, pt, pb)
+    known = np.zeros((size, size), dtype=bool)
+    known[py, px_] = True
+    for key in ("gums", "tongue"):
+        u0, v0, u1, v1 = TILES[key]
+        c0, c1 = round(u0 * size), round(u1 * size)
+        r0, r1 = round((1 - v1) * size), round((1 - v0) * size)
+        if known[r0:r1, c0:c1].any():
+            out[r0:r1, c0:c1, :3] = push_pull(out[r0:r1, c0:c1, :3], known[r0:r1, c0:c1])
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
 def bake_texture(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, face_uv: np.ndarray, parts: dict,
