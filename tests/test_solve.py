@@ -129,6 +129,43 @@ def test_calibration_finds_a_sampled_identitys_neutral():
         assert abs(e["mouthSmile_L"] - w.get("mouthSmile_L", 0.0)) < 0.1
 
 
+def test_a_performer_whose_lips_never_meet_rests_with_them_apart():
+    """Oracle: the model. A sampled ICT identity (seed 11) whose rest holds the jaw a quarter open
+    (lips about 8 mm apart, never together), talking wider from there: the neutral comes back as
+    that identity with its lips LIPS_APART apart (its own landmarks and the jawOpen that opens
+    them from its own 0.7 mm, within 0.3 mm), so every frame solves to its own jawOpen less that
+    bit; a neutral with the lips together is kept as is."""
+    from faceanim.drivers.video.tracking import rigid_landmarks
+    from faceanim.face.frame import similarity
+
+    head = generic_head()
+    rng = np.random.default_rng(11)
+    identity = rng.normal(size=head.n_identity)
+    closed = _frame({}, identity)
+    own = closed[13, 1] - closed[14, 1]
+    assert 0 < own < S.LIPS_APART
+    np.testing.assert_array_equal(S.shut_lips(closed, head), closed)
+    jaw_delta = head.landmarks(head.mesh.vertices + head.shape("jawOpen")) - head.landmarks()
+    rest_jaw = (S.LIPS_APART - own) / (jaw_delta[13, 1] - jaw_delta[14, 1])
+    expected = closed + rest_jaw * jaw_delta
+    frames, truth = [], []
+    for k in range(60):
+        jaw = 0.25 if k % 3 == 0 else 0.25 + rng.uniform(0.05, 0.4)
+        pose = (1800 + 50 * rng.normal(), _rotation(*rng.normal(0, 8, 3)), rng.normal(0, 30, 3))
+        frames.append(_as_mediapipe(_frame({"jawOpen": jaw}, identity), *pose))
+        truth.append(jaw)
+    ref, rigid = head.landmarks(), rigid_landmarks()
+    frontal = np.stack([S.head_frame(f, rigid, ref) for f in frames])
+    cal = S.calibrate(frontal)
+    s, r, t = similarity(cal.neutral[S.FACE_POINTS], expected[S.FACE_POINTS])
+    err = np.linalg.norm(s * cal.neutral[S.FACE_POINTS] @ r.T + t - expected[S.FACE_POINTS], axis=1)
+    assert err.max() < 3e-4, err.max()
+    solver = S.Solver(cal.neutral, S.SolverSettings(temporal=0.0))
+    jaw = S.solved_shapes(head).index("jawOpen")
+    got = np.array([solver.solve(S.camera_points(f))[jaw] for f in frames])
+    assert np.abs(got - (np.array(truth) - rest_jaw)).max() < 0.06
+
+
 def test_rest_frames_are_the_face_at_rest_whatever_the_lids_drift():
     """0.7 s at rest, then the jaw held open with the lids a hair wider (MediaPipe's smoothing does
     that): the frames taken as rest are the rest frames, by the gap alone and with the scores; a

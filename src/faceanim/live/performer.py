@@ -267,7 +267,7 @@ class LivePerformer(LiveFace):
 class LiveSolver(LivePerformer):
     """The ARKit solve (:mod:`faceanim.drivers.video.solve`) one frame at a time: the performer's
     neutral is the median of the frames most like a face at rest among those of the last
-    :data:`HISTORY` seconds (:func:`~faceanim.drivers.video.solve.rest_frames`), updated with the
+    :data:`HISTORY` seconds, its lips shut (:func:`~faceanim.drivers.video.solve.rest_neutral`), updated with the
     other running statistics; each frame is solved against it (the temporal term is causal, as
     offline); blinks, gaze, head and a lost face as :class:`LivePerformer`. ``step`` takes the
     frame's MediaPipe scores too (``cheekPuff``); the sample's weights are ARKit's 52 curves."""
@@ -292,12 +292,12 @@ class LiveSolver(LivePerformer):
         return frontal, None if self.scores is None else np.asarray(self.scores, dtype=np.float32)
 
     def _refresh(self) -> None:
-        from faceanim.drivers.video.solve import Solver, rest_frames
+        from faceanim.drivers.video.solve import Solver, rest_neutral
 
         super()._refresh()
         frontal = np.array([h[7][0] for h in self.history], dtype=np.float64)
         scores = None if any(h[7][1] is None for h in self.history) else np.array([h[7][1] for h in self.history])
-        neutral = np.median(frontal[rest_frames(frontal, scores=scores)], axis=0)
+        neutral, _ = rest_neutral(frontal, scores)
         if self.solver is None:
             self.solver = Solver(neutral, self.solver_settings)
         else:

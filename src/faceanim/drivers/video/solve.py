@@ -60,6 +60,7 @@ PRIOR = 20.0  # ridge on the weights: a weight of 1 costs as much as 20 landmark
 TEMPORAL = 20.0  # pull to the previous frame's weights, in the same units
 FROM_SCORES = ("cheekPuff_L", "cheekPuff_R")  # taken from MediaPipe's scores (cheekPuff)
 REST_SHARE = 0.2  # the performer's face at rest: the fifth of the frames most like it
+LIPS_APART = 1e-3  # a neutral whose inner lips are further apart than this (metres) gets them shut
 # MediaPipe's face oval (the silhouette ring)
 FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152,
              148, 176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109)
@@ -256,26 +257,53 @@ def rest_frames(frontal: np.ndarray, share: float = REST_SHARE, scores: np.ndarr
     return np.sort(open_eyes[np.argsort(key, kind="stable")[:n]])
 
 
+def shut_lips(neutral: np.ndarray, head: GenericHead | None = None) -> np.ndarray:
+    """The neutral (478, 3, head frame) with its lips together: where its inner lips (13 - 14)
+    are more than :data:`LIPS_APART` apart (the generic head's own rest gap is 1.0 mm, ICT's
+    identities' -0.1-1.7 mm, MediaPipe's on lips that touch -0.4-0.2 mm), the generic head's
+    ``jawOpen`` that brings them to :data:`LIPS_APART` is taken off the face points (at most a
+    whole ``jawOpen``). A performer whose lips never meet
+    (d10's rest gap is 3-15 mm) otherwise rests at an open mouth: the avatar's lips then shut
+    while the performer's stay apart, and only the opening beyond her rest is played."""
+    head = head or generic_head()
+    n = np.array(neutral, dtype=np.float64)
+    gap = n[13, 1] - n[14, 1]
+    if gap <= LIPS_APART:
+        return n
+    jaw = _deltas(head)[..., solved_shapes(head).index("jawOpen")]
+    per_unit = jaw[13, 1] - jaw[14, 1]
+    if per_unit <= 0:
+        return n
+    n[FACE_POINTS] -= min((gap - LIPS_APART) / per_unit, 1.0) * jaw
+    return n
+
+
+def rest_neutral(frontal: np.ndarray, scores: np.ndarray | None = None, head: GenericHead | None = None) -> tuple[np.ndarray, int]:
+    """(the performer's neutral, the number of frames it is made of): the median per point of the
+    :func:`rest_frames`, its lips :func:`shut_lips`."""
+    f = np.asarray(frontal, dtype=np.float64)
+    rest_idx = rest_frames(f, scores=scores)
+    return shut_lips(np.median(f[rest_idx], axis=0), head), len(rest_idx)
+
+
 def calibrate(frontal: np.ndarray, head: GenericHead | None = None, scores: np.ndarray | None = None) -> Calibration:
     """The performer's neutral face from (F, 478, 3) tracked frames in the generic head's frame
     (``scores``: MediaPipe's (F, 51), to rank the frames by expression too).
 
     The frames most like a face at rest (:func:`rest_frames`) are averaged (the median per
-    point): that is the neutral, the person's own shape with MediaPipe's own bias on it, so a
-    frame like the performer at rest solves to about zero. Taking off what the one
-    registration's landmark fit calls expression in it (a mouth never quite shut) was tried and
-    did not help on the tuning clips (d0, d3, d9), so it is not done.
+    point), the lips shut if they are apart (:func:`shut_lips`): that is the neutral, the person's
+    own shape with MediaPipe's own bias on it, so a frame like the performer at rest solves to
+    about zero. Taking off all that the one registration's landmark fit calls expression in it
+    was tried and did not help on the tuning clips (d0, d3, d9), so only the lips' gap is.
     The fit (:func:`~faceanim.face.registration.fit_landmarks`) is kept for the record: the
     identity's weights and what the fitted head left over."""
     from faceanim.face.registration import fit_landmarks
 
     head = head or generic_head()
-    f = np.asarray(frontal, dtype=np.float64)
-    rest_idx = rest_frames(f, scores=scores)
-    neutral = np.median(f[rest_idx], axis=0)
+    neutral, frames = rest_neutral(frontal, scores, head)
     _, _, _, x, err = fit_landmarks(neutral, head)
     k = head.n_identity
-    return Calibration(neutral, x[:k], err, len(rest_idx))
+    return Calibration(neutral, x[:k], err, frames)
 
 
 def to_arkit(weights: np.ndarray, scores: np.ndarray | None, head: GenericHead | None = None) -> np.ndarray:
