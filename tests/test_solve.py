@@ -190,6 +190,28 @@ def test_rest_frames_are_the_face_at_rest_whatever_the_lids_drift():
         assert len(picked) == 9 and picked.max() < 20 and 10 not in picked, picked
 
 
+def test_rest_frames_stay_at_rest_when_the_next_expression_widens_the_eyes():
+    """Half a second at rest, then a pucker held with the lids 20% wider (as d18 opens): the
+    frames taken as rest are the first ones, with and without MediaPipe's scores, from the
+    first 45 frames as live has them."""
+    from faceanim.face.mediapipe import BLENDSHAPE_NAMES
+
+    rest, pursed = _frame({}), _frame({"mouthPucker": 0.6})
+    frames, scores = [], np.zeros((45, len(BLENDSHAPE_NAMES)))
+    for k in range(45):
+        f = (rest if k < 15 else pursed).copy()
+        if k >= 15:
+            for top, bottom in ((159, 145), (386, 374)):
+                mid = 0.5 * (f[top] + f[bottom])
+                f[top], f[bottom] = mid + 1.2 * (f[top] - mid), mid + 1.2 * (f[bottom] - mid)
+            f[13, 1] += 2e-4  # the pursed lips a hair apart
+            scores[k, BLENDSHAPE_NAMES.index("mouthPucker")] = 0.6
+        frames.append(f)
+    for sc in (None, scores):
+        picked = S.rest_frames(np.array(frames), scores=sc)
+        assert len(picked) == 9 and picked.max() < 15, picked
+
+
 def test_to_arkit_names_and_halves():
     """ARKit's one curve for both halves takes their mean; cheekPuff comes from MediaPipe's score."""
     from faceanim.face.mediapipe import BLENDSHAPE_NAMES

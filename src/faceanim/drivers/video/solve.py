@@ -223,8 +223,7 @@ class Calibration:
     frames: int = 0
 
 
-REST_EYES = 40  # ... with the eyes at least as open as in this percentile of the frames
-REST_EYES_NEAR = 0.9  # ... or as open as this share of their median (eyes that hardly vary: all frames)
+REST_EYES = 0.75  # ... among the frames whose lids are at least this share of their median opening apart
 
 
 def expressiveness(scores: np.ndarray) -> np.ndarray:
@@ -239,15 +238,17 @@ def expressiveness(scores: np.ndarray) -> np.ndarray:
 
 def rest_frames(frontal: np.ndarray, share: float = REST_SHARE, scores: np.ndarray | None = None) -> np.ndarray:
     """Indices of the frames (F, 478, 3, head frame) most like a face at rest, among the frames
-    whose eyes are open (the lids' mean opening at least its :data:`REST_EYES` percentile or
-    :data:`REST_EYES_NEAR` of its median, whichever is lower: no blink, no squint, but a face
-    whose lids hardly move keeps its frames): the lowest ``share`` by the lips' gap (the inner
+    whose eyes are open (the lids' mean opening at least :data:`REST_EYES` of its median: no
+    blink; squints are the scores' to rank): the lowest ``share`` by the lips' gap (the inner
     lips, MediaPipe 13 - 14) or, with MediaPipe's ``scores`` (F, 51), by the sum of the gap's rank
-    and the :func:`expressiveness`'s rank (lips together and no smile, no raised brows)."""
+    and the :func:`expressiveness`'s rank (lips together and no smile, no raised brows).
+    The eyes are not asked to be among the widest (the 40th percentile was the bar): a performer
+    who opens a take at rest and then purses his lips with his eyes wider (d18, held out) had
+    his rest frames barred for the first 1.5 s and the pursed mouth taken as live's neutral."""
     f = np.asarray(frontal, dtype=np.float64)
     gap = f[:, 13, 1] - f[:, 14, 1]
     eyes = 0.5 * ((f[:, 159, 1] - f[:, 145, 1]) + (f[:, 386, 1] - f[:, 374, 1]))
-    open_eyes = np.flatnonzero(eyes >= min(np.percentile(eyes, REST_EYES), REST_EYES_NEAR * np.median(eyes)))
+    open_eyes = np.flatnonzero(eyes >= REST_EYES * np.median(eyes))
     n = max(1, int(round(share * len(f))))
     key = gap[open_eyes]
     if scores is not None:
