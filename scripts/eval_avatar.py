@@ -39,13 +39,12 @@ def compare(gen: np.ndarray, art: np.ndarray) -> tuple[float, float, float]:
     return cos, float(np.linalg.norm(scale * g - a) / np.linalg.norm(a)), scale
 
 
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("avatar", type=Path)
-    ap.add_argument("--sheet", type=Path, help="write a picture sheet (artist's row, faceanim's row) here")
-    args = ap.parse_args(argv)
+def load_avatar(path: Path):
+    """(the avatar's head welded into one Face, faceanim's rig of it (``auto_rig`` ARKit +
+    visemes), the artist's shapes of the same names on the welded face, the names of the
+    artist's shapes that move nothing, the seconds the rig took)."""
     t = time.perf_counter()
-    scene = read_scene(args.avatar)
+    scene = read_scene(path)
     head, companions = find_head(scene)
     meshes = [head, *companions]
     face, parts = avatar_face(scene, meshes)
@@ -65,8 +64,19 @@ def main(argv=None) -> None:
             artist.setdefault(n, []).append(targets[n][first])
     artist = {n: np.vstack(v) for n, v in artist.items()}
     empty = [n for n, d in artist.items() if np.abs(d).max() == 0]
+    face.mesh.name = scene.meshes()[head].name
+    return face, auto, artist, empty, took
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("avatar", type=Path)
+    ap.add_argument("--sheet", type=Path, help="write a picture sheet (artist's row, faceanim's row) here")
+    args = ap.parse_args(argv)
+    face, auto, artist, empty, took = load_avatar(args.avatar)
+    names = list(artist)
     rows = {n: compare(auto.shapes[n], artist[n]) for n in names if n not in empty}
-    print(f"{scene.meshes()[head].name}: {face.mesh.n_vertices} welded vertices, rig {took:.1f} s "
+    print(f"{face.mesh.name}: {face.mesh.n_vertices} welded vertices, rig {took:.1f} s "
           f"(read, find, land, rig)")
     print(f"the artist's shapes that move nothing (left out): {', '.join(empty) or 'none'}\n")
     print("| set | shapes | median cosine | median best-scale error | median scale | worst cosine |")
