@@ -8,8 +8,8 @@ Each avatar's head is welded and rigged as ``faceanim rig`` does (``eval_avatar.
 and registered to the generic head (ICT FaceKit). A's shapes reach B so: each of B's vertices has
 its point on the generic head (the registration's dense correspondence, ``face_to_head``); A's
 vertices have theirs; B's point is found on A's mesh laid out at those head points (the closest
-point on A's triangles whose corners are on the same side of every slit and of the same kind,
-skin or not), and A's displacement there is interpolated, taken into the generic head's frame
+point on A's triangles that the front view sees and whose corners are on the same side of every
+slit), and A's displacement there is interpolated, taken into the generic head's frame
 (A's registration: ``delta_head = R_A^T delta_A / s_A``) and out into B's (``s_B R_B
 delta_head``), as faceanim's retargeting moves every shape. Then per shape, over the vertices the
 receiving artist's shape moves (more than 5% of its largest motion): cosine and the relative error
@@ -33,25 +33,21 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from eval_avatar import compare, load_avatar  # noqa: E402
-
-KIND = slice(1, None)
+from eval_avatar import compare, load_avatar, set_summary  # noqa: E402
 
 
 def head_points(face) -> tuple[np.ndarray, np.ndarray]:
-    """(each vertex's point on the generic head at rest (V, 3), its kind: skin and the side of
-    each slit of the head triangle it lands on (V, 1 + S) booleans)."""
+    """(each vertex's point on the generic head at rest (V, 3), the side of each slit of the head
+    vertex nearest it (V, S) booleans). Skin or not is not part of it: one artist's eye piece
+    must find what the other put in its place, lid or eyeball."""
     from faceanim.face.registration import _head_sides
 
     head = face.registration.head
     tri, bary = face.correspondence
     corners = head.mesh.faces[tri]
     points = np.einsum("vc,vcd->vd", bary, head.mesh.vertices[corners])
-    skin = np.zeros(head.mesh.n_vertices, bool)
-    skin[head.parts["skin"]] = True
     sides, _ = _head_sides(head)
-    nearest = corners[np.arange(len(tri)), np.argmax(bary, axis=1)]  # the corner it is closest to
-    return points, np.column_stack([skin[nearest], sides[nearest]])[:, KIND]
+    return points, sides[corners[np.arange(len(tri)), np.argmax(bary, axis=1)]]
 
 
 def front_visible(face, resolution: int = 512) -> np.ndarray:
@@ -101,20 +97,6 @@ def carry(src, src_shapes: dict, dst, names) -> dict[str, np.ndarray]:
     return out
 
 
-def summary(rows: dict) -> list[str]:
-    out = []
-    for label, keep in (("ARKit", lambda n: not n.startswith("viseme_")), ("visemes", lambda n: n.startswith("viseme_"))):
-        sel = {n: r for n, r in rows.items() if keep(n)}
-        if not sel:
-            continue
-        c = np.array([r[0] for r in sel.values()])
-        e = np.array([r[1] for r in sel.values()])
-        worst = sorted(sel.items(), key=lambda kv: kv[1][0])[:4]
-        out.append(f"{label} | {len(sel)} | {np.median(c):.2f} | {np.median(e):.2f} | "
-                   + ", ".join(f"{n} {r[0]:.2f}" for n, r in worst))
-    return out
-
-
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("a", type=Path, help="an avatar (.glb/.vrm) whose face carries an artist's ARKit shapes")
@@ -141,8 +123,8 @@ def main(argv=None) -> None:
     print("| shapes | set | count | median cosine | median best-scale error | worst cosine |")
     print("|---|---|---:|---:|---:|---|")
     for title, rows in tables.items():
-        for line in summary(rows):
-            print(f"| {title} | {line} |")
+        for label, count, cos, err, _, worst in set_summary(rows):
+            print(f"| {title} | {label} | {count} | {cos:.2f} | {err:.2f} | {worst} |")
     if args.shapes:
         print("\n| shape | " + " | ".join(tables) + " |")
         print("|---|" + "---:|" * len(tables))

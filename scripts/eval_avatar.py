@@ -39,6 +39,19 @@ def compare(gen: np.ndarray, art: np.ndarray) -> tuple[float, float, float]:
     return cos, float(np.linalg.norm(scale * g - a) / np.linalg.norm(a)), scale
 
 
+def set_summary(rows: dict) -> list[tuple]:
+    """Per set (ARKit, visemes) of ``rows`` (name -> :func:`compare`'s figures): (set, count,
+    median cosine, median best-scale error, median scale, the four worst cosines as text)."""
+    out = []
+    for label, keep in (("ARKit", lambda n: not n.startswith("viseme_")), ("visemes", lambda n: n.startswith("viseme_"))):
+        sel = {n: r for n, r in rows.items() if keep(n)}
+        if sel:
+            c, e, s = (np.median([r[k] for r in sel.values()]) for k in range(3))
+            worst = sorted(sel.items(), key=lambda kv: kv[1][0])[:4]
+            out.append((label, len(sel), c, e, s, ", ".join(f"{n} {r[0]:.2f}" for n, r in worst)))
+    return out
+
+
 def load_avatar(path: Path):
     """(the avatar's head welded into one Face, faceanim's rig of it (``auto_rig`` ARKit +
     visemes), the artist's shapes of the same names on the welded face, the names of the
@@ -81,16 +94,8 @@ def main(argv=None) -> None:
     print(f"the artist's shapes that move nothing (left out): {', '.join(empty) or 'none'}\n")
     print("| set | shapes | median cosine | median best-scale error | median scale | worst cosine |")
     print("|---|---:|---:|---:|---:|---|")
-    for label, keep in (("ARKit", lambda n: not n.startswith("viseme_")), ("visemes", lambda n: n.startswith("viseme_"))):
-        sel = {n: r for n, r in rows.items() if keep(n)}
-        if not sel:
-            continue
-        c = np.array([r[0] for r in sel.values()])
-        e = np.array([r[1] for r in sel.values()])
-        s = np.array([r[2] for r in sel.values()])
-        worst = sorted(sel.items(), key=lambda kv: kv[1][0])[:4]
-        print(f"| {label} | {len(sel)} | {np.median(c):.2f} | {np.median(e):.2f} | {np.median(s):.2f} | "
-              + ", ".join(f"{n} {r[0]:.2f}" for n, r in worst) + " |")
+    for label, count, cos, err, scale, worst in set_summary(rows):
+        print(f"| {label} | {count} | {cos:.2f} | {err:.2f} | {scale:.2f} | {worst} |")
     print()
     for n, (c, e, s) in rows.items():
         print(f"    {n}: cosine {c:.3f} best-scale error {e:.3f} scale {s:.2f}")

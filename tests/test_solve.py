@@ -38,6 +38,24 @@ def _frame(weights: dict, identity=None):
     return head.landmarks(v)
 
 
+def _calibrated(frames):
+    """The calibration of frames seen by a camera, each put in the generic head's frame as
+    tracking puts them."""
+    from faceanim.drivers.video.tracking import rigid_landmarks
+
+    head = generic_head()
+    ref, rigid = head.landmarks(), rigid_landmarks()
+    return S.calibrate(np.stack([S.head_frame(f, rigid, ref) for f in frames]))
+
+
+def _neutral_error(neutral, truth) -> float:
+    """The largest face point distance between two neutrals once the pose is taken out (metres)."""
+    from faceanim.face.frame import similarity
+
+    s, r, t = similarity(neutral[S.FACE_POINTS], truth[S.FACE_POINTS])
+    return float(np.linalg.norm(s * neutral[S.FACE_POINTS] @ r.T + t - truth[S.FACE_POINTS], axis=1).max())
+
+
 def test_weights_put_in_come_back_through_an_unknown_pose():
     """Oracle: the model itself. Landmarks made from known weights, turned, scaled and moved as a
     camera would see them, solve back to those weights (within 0.03; the prior shrinks them a
@@ -102,9 +120,6 @@ def test_calibration_finds_a_sampled_identitys_neutral():
     frames at rest, the others with the jaw open and a smile, each seen in another pose. The
     calibration's neutral is that identity's own landmarks (every face point within 0.3 mm once
     the pose is taken out), and the talking frames solve to their jaw and smile."""
-    from faceanim.drivers.video.tracking import rigid_landmarks
-    from faceanim.face.frame import similarity
-
     head = generic_head()
     rng = np.random.default_rng(11)
     identity = rng.normal(size=head.n_identity)
@@ -115,12 +130,8 @@ def test_calibration_finds_a_sampled_identitys_neutral():
         pose = (1800 + 50 * rng.normal(), _rotation(*rng.normal(0, 8, 3)), rng.normal(0, 30, 3))
         frames.append(_as_mediapipe(_frame(w, identity), *pose))
         truth.append(w)
-    ref, rigid = head.landmarks(), rigid_landmarks()
-    frontal = np.stack([S.head_frame(f, rigid, ref) for f in frames])
-    cal = S.calibrate(frontal)
-    s, r, t = similarity(cal.neutral[S.FACE_POINTS], rest[S.FACE_POINTS])
-    err = np.linalg.norm(s * cal.neutral[S.FACE_POINTS] @ r.T + t - rest[S.FACE_POINTS], axis=1)
-    assert err.max() < 3e-4, err.max()
+    cal = _calibrated(frames)
+    assert _neutral_error(cal.neutral, rest) < 3e-4
     solver = S.Solver(cal.neutral, S.SolverSettings(temporal=0.0))
     names = S.solved_shapes(head)
     for f, w in zip(frames, truth):
@@ -135,9 +146,6 @@ def test_a_performer_whose_lips_never_meet_rests_with_them_apart():
     that identity with its lips LIPS_APART apart (its own landmarks and the jawOpen that opens
     them from its own 0.7 mm, within 0.3 mm), so every frame solves to its own jawOpen less that
     bit; a neutral with the lips together is kept as is."""
-    from faceanim.drivers.video.tracking import rigid_landmarks
-    from faceanim.face.frame import similarity
-
     head = generic_head()
     rng = np.random.default_rng(11)
     identity = rng.normal(size=head.n_identity)
@@ -154,12 +162,8 @@ def test_a_performer_whose_lips_never_meet_rests_with_them_apart():
         pose = (1800 + 50 * rng.normal(), _rotation(*rng.normal(0, 8, 3)), rng.normal(0, 30, 3))
         frames.append(_as_mediapipe(_frame({"jawOpen": jaw}, identity), *pose))
         truth.append(jaw)
-    ref, rigid = head.landmarks(), rigid_landmarks()
-    frontal = np.stack([S.head_frame(f, rigid, ref) for f in frames])
-    cal = S.calibrate(frontal)
-    s, r, t = similarity(cal.neutral[S.FACE_POINTS], expected[S.FACE_POINTS])
-    err = np.linalg.norm(s * cal.neutral[S.FACE_POINTS] @ r.T + t - expected[S.FACE_POINTS], axis=1)
-    assert err.max() < 3e-4, err.max()
+    cal = _calibrated(frames)
+    assert _neutral_error(cal.neutral, expected) < 3e-4
     solver = S.Solver(cal.neutral, S.SolverSettings(temporal=0.0))
     jaw = S.solved_shapes(head).index("jawOpen")
     got = np.array([solver.solve(S.camera_points(f))[jaw] for f in frames])
