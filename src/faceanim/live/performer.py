@@ -267,8 +267,8 @@ class LivePerformer(LiveFace):
 class LiveSolver(LivePerformer):
     """The ARKit solve (:mod:`faceanim.drivers.video.solve`) one frame at a time: the performer's
     neutral is the median of the frames most like a face at rest among those of the last
-    :data:`HISTORY` seconds, its lips shut (:func:`~faceanim.drivers.video.solve.rest_neutral`), updated with the
-    other running statistics; each frame is solved against it (the temporal term is causal, as
+    :data:`HISTORY` seconds, its lips shut (:func:`~faceanim.drivers.video.solve.rest_neutral`),
+    updated with the other running statistics; each frame is solved against it (the temporal term is causal, as
     offline); blinks, gaze, head and a lost face as :class:`LivePerformer`. ``step`` takes the
     frame's MediaPipe scores too (``cheekPuff``); the sample's weights are ARKit's 52 curves."""
 

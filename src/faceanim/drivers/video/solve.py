@@ -263,9 +263,9 @@ def shut_lips(neutral: np.ndarray, head: GenericHead | None = None) -> np.ndarra
     are more than :data:`LIPS_APART` apart (the generic head's own rest gap is 1.0 mm, ICT's
     identities' -0.1-1.7 mm, MediaPipe's on lips that touch -0.4-0.2 mm), the generic head's
     ``jawOpen`` that brings them to :data:`LIPS_APART` is taken off the face points (at most a
-    whole ``jawOpen``). A performer whose lips never meet
-    (d10's rest gap is 3-15 mm) otherwise rests at an open mouth: the avatar's lips then shut
-    while the performer's stay apart, and only the opening beyond her rest is played."""
+    whole ``jawOpen``). A performer whose lips never meet (d10's rest gap is 3-15 mm) otherwise
+    rests at an open mouth: the avatar's lips then shut while the performer's stay apart, and only
+    the opening beyond her rest is played."""
     head = head or generic_head()
     n = np.array(neutral, dtype=np.float64)
     gap = n[13, 1] - n[14, 1]
@@ -279,7 +279,8 @@ def shut_lips(neutral: np.ndarray, head: GenericHead | None = None) -> np.ndarra
     return n
 
 
-def rest_neutral(frontal: np.ndarray, scores: np.ndarray | None = None, head: GenericHead | None = None) -> tuple[np.ndarray, int]:
+def rest_neutral(frontal: np.ndarray, scores: np.ndarray | None = None,
+                 head: GenericHead | None = None) -> tuple[np.ndarray, int]:
     """(the performer's neutral, the number of frames it is made of): the median per point of the
     :func:`rest_frames`, its lips :func:`shut_lips`."""
     f = np.asarray(frontal, dtype=np.float64)
