@@ -134,4 +134,10 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from faceanim.errors import FaceAnimError
+
+    try:
+        main()
+    except FaceAnimError as exc:  # a missing or damaged avatar: one line, as faceanim's commands say it
+        print(f"{Path(__file__).name}: error: {exc}", file=sys.stderr)
+        sys.exit(2)

@@ -16,6 +16,7 @@ The avatar is used for measuring only; it is never copied into the project.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -121,4 +122,10 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from faceanim.errors import FaceAnimError
+
+    try:
+        main()
+    except FaceAnimError as exc:  # a missing or damaged avatar: one line, as faceanim's commands say it
+        print(f"{Path(__file__).name}: error: {exc}", file=sys.stderr)
+        sys.exit(2)

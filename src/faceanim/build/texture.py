@@ -1016,11 +1016,7 @@ def bake(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, face_uv: np.nd
         known = np.zeros((size, size), dtype=bool)
         known[py, px_] = True
         for box in TILES.values():
-            u0, v0, u1, v1 = box
-            c0, c1 = round(u0 * size), round(u1 * size)
-            r0, r1 = round((1 - v1) * size), round((1 - v0) * size)
-            if known[r0:r1, c0:c1].any():
-                out[r0:r1, c0:c1] = push_pull(out[r0:r1, c0:c1], known[r0:r1, c0:c1])
+            _fill_tile(out, known, box)
     elif not atlas and len(py):
         known = split >= 0
         known[py, px_] = True
@@ -1066,6 +1062,17 @@ def _cavity_colours(v, f, chart, cavity, corners, atlas_img, tris, bary) -> np.n
     d = np.einsum("nk,nk->n", bary, depth[f[tris]])
     a = _smoothstep(d / np.maximum(0.6 * deepest[c], 1e-12))[:, None]
     return rim[c] * (1 - a) + np.asarray(CAVITY, dtype=np.float64)[None] * a
+
+
+def _fill_tile(out: np.ndarray, known: np.ndarray, box) -> None:
+    """Fill the texels of the tile ``box`` (u0, v0, u1, v1) of the atlas ``out`` that are not
+    ``known`` from those that are (:func:`push_pull`), in place."""
+    size = out.shape[0]
+    u0, v0, u1, v1 = box
+    rows = slice(round((1 - v1) * size), round((1 - v0) * size))
+    cols = slice(round(u0 * size), round(u1 * size))
+    if known[rows, cols].any():
+        out[rows, cols, :3] = push_pull(out[rows, cols, :3], known[rows, cols])
 
 
 def _mouth_colours(v, f, parts, name, points, tris, bary) -> np.ndarray:
@@ -1116,11 +1123,7 @@ def repaint_mouth(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, face_
     known = np.zeros((size, size), dtype=bool)
     known[py, px_] = True
     for key in ("gums", "tongue"):
-        u0, v0, u1, v1 = TILES[key]
-        c0, c1 = round(u0 * size), round(u1 * size)
-        r0, r1 = round((1 - v1) * size), round((1 - v0) * size)
-        if known[r0:r1, c0:c1].any():
-            out[r0:r1, c0:c1, :3] = push_pull(out[r0:r1, c0:c1, :3], known[r0:r1, c0:c1])
+        _fill_tile(out, known, TILES[key])
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
