@@ -219,6 +219,55 @@ def test_a_face_mask_has_no_eyeballs_to_turn(face, face_landmarks):
     np.testing.assert_array_equal(rig.evaluate(s)[0], mask.vertices)
 
 
+def test_a_low_poly_eyeball_is_found_and_turns_about_its_centre(face, face_landmarks):
+    """A game avatar's eyeball: a closed sphere whose vertices crowd its front (the mean of its
+    vertices lies far in front of its centre, so the spread about that mean is not round). It is
+    found, and turns about the sphere's own centre, not the vertices' mean."""
+    import trimesh
+
+    from faceanim.face.default import default_parts
+    from faceanim.face.mesh import Mesh
+    from faceanim.rig.mpeg4 import FapRig
+
+    parts = default_parts()
+    skin = parts["skin"]
+    keep = np.all(np.isin(face.faces, skin), axis=1)
+    new = np.full(face.n_vertices, -1)
+    new[skin] = np.arange(skin.size)
+    vertices, faces = [face.vertices[skin]], [new[face.faces[keep]]]
+    frame = face_frame(face_landmarks.positions)
+    forward = frame.rotation[2]
+    ball = trimesh.creation.icosphere(subdivisions=2)
+    unit = ball.vertices / np.linalg.norm(ball.vertices, axis=1, keepdims=True)
+    # pull every vertex along the sphere towards the front pole: the same sphere, crowded in front
+    pole = np.array([0.0, 0.0, 1.0])
+    angle = np.arccos(np.clip(unit @ pole, -1, 1))
+    axis = np.cross(pole, unit)
+    norm = np.linalg.norm(axis, axis=1, keepdims=True)
+    axis = np.where(norm > 1e-9, axis / np.maximum(norm, 1e-12), [1.0, 0.0, 0.0])
+    from scipy.spatial.transform import Rotation
+
+    crowded = Rotation.from_rotvec(axis * (0.6 * angle)[:, None]).apply(pole)
+    to_face = Rotation.align_vectors([forward], [pole])[0]
+    centres = {}
+    for side in ("L", "R"):
+        shell = face.vertices[parts[f"eyeball_{side}"]]
+        centre, radius = shell.mean(axis=0) - 0.2 * frame.iod * forward, 0.12 * frame.iod
+        centres[side] = centre
+        faces.append(ball.faces + sum(len(v) for v in vertices))
+        vertices.append(centre + radius * to_face.apply(crowded))
+    mesh = Mesh(np.vstack(vertices), np.vstack(faces))
+    rows = np.arange(len(vertices[0]), len(vertices[0]) + len(crowded))
+    p = mesh.vertices[rows]
+    dist = np.linalg.norm(p - p.mean(axis=0), axis=1)
+    assert dist.std() > 0.25 * dist.mean()  # the vertices' mean test alone would refuse it
+    assert np.linalg.norm(p.mean(axis=0) - centres["L"]) > 0.3 * 0.12 * frame.iod
+    eyes = FapRig.build(Face(mesh, face_landmarks.positions)).eyes
+    for side in ("L", "R"):
+        assert eyes[side] is not None
+        np.testing.assert_allclose(eyes[side][1], centres[side], atol=1e-6 * frame.iod)
+
+
 def test_glb_linearisation_of_the_jaw_and_head_is_their_exact_derivative(fap_rig, face):
     """What a glTF morph target stores for open_jaw, thrust_jaw, the head turns: the derivative of
     the true (rotating) motion at the neutral pose, against central finite differences."""

@@ -89,8 +89,13 @@ def test_eye_looks_turn_the_eyeballs_rigidly_the_right_way(default_rig):
             before = np.linalg.norm(rest[pair][:, None] - rest[pair][None], axis=2)
             after = np.linalg.norm((rest + d)[pair][:, None] - (rest + d)[pair][None], axis=2)
             assert np.abs(after - before).max() < 2e-3 * before.max()  # float32 file, rigid
-            radius = np.linalg.norm(rest[front] - centre)
-            assert d[front] @ towards == pytest.approx(radius * np.sin(LOOK_ANGLES[look]), rel=0.02)
+            # the front turns by the take's angle about the axis across the gaze, towards the name's side
+            axis = np.cross(forward, towards)
+            axis /= np.linalg.norm(axis)
+            before_, after_ = (u - (u @ axis) * axis for u in (rest[front] - centre, rest[front] + d[front] - centre))
+            angle = np.arctan2(np.linalg.norm(np.cross(before_, after_)), before_ @ after_)
+            assert angle == pytest.approx(LOOK_ANGLES[look], rel=0.02)
+            assert d[front] @ towards > 0.5 * np.linalg.norm(d[front])
             assert np.all(np.isfinite(moved))
             # the other eye stays; the upper lid follows a look up or down (ICT's lid motion carried)
             other = eyes["R" if side == "L" else "L"][0]

@@ -25,6 +25,7 @@ import numpy as np
 
 from faceanim.face.face import Face
 from faceanim.face.generic_head import generic_head
+from faceanim.rig.mpeg4 import EYEBALL_OPEN as OPEN_EYE, boundary_share, fit_sphere
 from faceanim.rig.retarget import retarget
 from faceanim.rig.rig import Rig
 from faceanim.standards.arkit import LOOK_ANGLES, apple_name
@@ -80,7 +81,6 @@ def _look_shapes(face: Face, eyes: dict) -> dict[str, np.ndarray]:
     return out
 
 
-OPEN_EYE = 0.02  # eye pieces with more than this share of boundary edges are plates, not balls
 
 
 def registered_eyes(face: Face) -> dict:
@@ -100,14 +100,9 @@ def registered_eyes(face: Face) -> dict:
         on_eye = np.isin(head.mesh.faces[tri], part).all(axis=1) & ~skin
         if on_eye.any():
             rows = np.flatnonzero(on_eye)
-            ball = reg.vertices[part]
-            radius = float(np.linalg.norm(ball - ball.mean(axis=0), axis=1).mean())
-            f = face.mesh.faces[np.isin(face.mesh.faces, rows).all(axis=1)]
-            edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-            _, count = np.unique(edges, axis=0, return_counts=True)
-            closed = len(count) > 0 and np.mean(count == 1) < OPEN_EYE
-            centre = ball.mean(axis=0) if closed else \
-                face.mesh.vertices[rows].mean(axis=0) - radius * face.frame.rotation[2]
+            ball, radius = fit_sphere(reg.vertices[part])
+            closed = boundary_share(face.mesh, rows) < OPEN_EYE
+            centre = ball if closed else face.mesh.vertices[rows].mean(axis=0) - radius * face.frame.rotation[2]
             out[side] = (rows, centre)
     return out
 

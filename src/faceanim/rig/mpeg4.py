@@ -66,11 +66,17 @@ HEAD_FAPS = (HEAD_PITCH, HEAD_YAW, HEAD_ROLL)
 EYEBALL_TURNS = {"L": (23, 25), "R": (24, 26)}  # (yaw, pitch) of each eyeball
 EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)  # with thrust and pupil dilation
 # an eyeball modelled as a part of the mesh: a shell that is not skin, of at least
-# EYEBALL_MIN_VERTICES, round (spread of distances from its centre under EYEBALL_ROUNDNESS of their
-# mean: sclera, cornea, iris; lashes and occlusion shells are not), centred within
-# EYEBALL_NEAR_PUPIL and no larger than EYEBALL_MAX_RADIUS inter-ocular distances
+# EYEBALL_MIN_VERTICES, round, centred within EYEBALL_NEAR_PUPIL and no larger than
+# EYEBALL_MAX_RADIUS inter-ocular distances. Round: a closed shell (under EYEBALL_OPEN of its
+# edges on a boundary: sclera, cornea, iris) whose least-squares sphere leaves a spread of
+# distances under EYEBALL_SPHERE of its radius (a game avatar's low-poly eyeball, its vertices
+# crowded at the iris: their mean lies 0.6 radii in front of its centre); or any shell whose spread of distances from its vertices' mean is under
+# EYEBALL_ROUNDNESS of their mean (lashes and occlusion shells are neither). A closed shell turns
+# about its sphere's centre, an open one about its vertices' mean.
 EYEBALL_MIN_VERTICES = 20
 EYEBALL_ROUNDNESS = 0.25
+EYEBALL_SPHERE = 0.15
+EYEBALL_OPEN = 0.02  # a shell with more than this share of boundary edges is open (a plate, not a ball)
 EYEBALL_NEAR_PUPIL = 0.35
 EYEBALL_MAX_RADIUS = 0.4
 # the jaw region: between the mouth corners the lower side of the mouth slit; from JAW_BAND_START
@@ -83,6 +89,26 @@ WEIGHT_FLOOR = 1e-6  # FaceDefTable weights below this are dropped (sparse blend
 BROW_GROUP = 4  # the FAP group of the eyebrows
 
 
+def boundary_share(mesh: Mesh, rows: np.ndarray) -> float:
+    """The share of the edges of the triangles among ``rows`` that only one triangle has (0: a
+    closed shell; 1 when there are no such triangles)."""
+    f = mesh.faces[np.isin(mesh.faces, rows).all(axis=1)]
+    if not len(f):
+        return 1.0
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, count = np.unique(edges, axis=0, return_counts=True)
+    return float(np.mean(count == 1))
+
+
+def fit_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centre, radius) of the least-squares sphere through ``points`` (the algebraic fit:
+    |p|^2 = 2 p.c + r^2 - |c|^2 is linear in c and r^2 - |c|^2)."""
+    a = np.column_stack([2.0 * points, np.ones(len(points))])
+    x, *_ = np.linalg.lstsq(a, np.einsum("ij,ij->i", points, points), rcond=None)
+    centre = x[:3]
+    return centre, float(np.sqrt(max(x[3] + centre @ centre, 0.0)))
+
+
 def _find_eyeballs(mesh: Mesh, fp: FeaturePoints, on_skin: np.ndarray) -> dict:
     """Eyeballs modelled as separate parts: the round shells (not skin) around each pupil, turned
     about the centre of the largest one. None for a face that has no eyeball there."""
@@ -93,9 +119,17 @@ def _find_eyeballs(mesh: Mesh, fp: FeaturePoints, on_skin: np.ndarray) -> dict:
         rows, best, best_size = [], None, 0
         for c in np.unique(labels[~on_skin]):
             part = np.flatnonzero(labels == c)
-            centre = mesh.vertices[part].mean(0)
-            dist = np.linalg.norm(mesh.vertices[part] - centre, axis=1)
-            round_ = len(part) >= EYEBALL_MIN_VERTICES and dist.std() < EYEBALL_ROUNDNESS * dist.mean()
+            if len(part) < EYEBALL_MIN_VERTICES:
+                continue
+            p = mesh.vertices[part]
+            centre = p.mean(0)
+            dist = np.linalg.norm(p - centre, axis=1)
+            round_ = dist.std() < EYEBALL_ROUNDNESS * dist.mean()
+            if boundary_share(mesh, part) < EYEBALL_OPEN:
+                ball, radius = fit_sphere(p)
+                spread = np.linalg.norm(p - ball, axis=1)
+                if spread.std() < EYEBALL_SPHERE * radius:
+                    round_, centre, dist = True, ball, spread
             if round_ and np.linalg.norm(centre - pupil) < EYEBALL_NEAR_PUPIL * iod \
                     and dist.max() < EYEBALL_MAX_RADIUS * iod:
                 rows.append(part)
