@@ -7,8 +7,11 @@ meshes welded into one face in the bind pose, landmarks detected and ARKit + vis
 (nothing of the artist's targets is read for that: they are not part of the geometry). Then each
 generated shape is compared with the artist's target of the same name over the vertices the
 artist's moves (more than 5% of its largest motion): cosine, and the relative error at the best
-scale (the artist's shapes are often not at a human's full range), with the scale. Shapes the artist
-left empty (VRoid's ``jawOpen`` and ``tongueOut`` move nothing) are listed and left out.
+scale (the artist's shapes are often not at a human's full range), with the scale, and the error
+as made (scale 1). Shapes the artist left empty (VRoid's ``jawOpen`` and ``tongueOut`` move
+nothing) are listed and left out. Then how far each Left shape's figures are from its Right's, and
+per blink the share of the eye's opening the front view still shows after it (faceanim's and the
+artist's; ``faceanim.rig.arkit.eye_opening``).
 
 The avatar is used for measuring only; it is never copied into the project.
 """
@@ -29,15 +32,17 @@ from faceanim.io.scene import read_scene
 MOVING = 0.05
 
 
-def compare(gen: np.ndarray, art: np.ndarray) -> tuple[float, float, float]:
-    """(cosine, best-scale relative error, best scale) over the artist's moving region."""
+def compare(gen: np.ndarray, art: np.ndarray) -> tuple[float, float, float, float]:
+    """(cosine, best-scale relative error, best scale, relative error as made: scale 1) over the
+    artist's moving region."""
     m = np.linalg.norm(art, axis=1)
     region = m > MOVING * m.max()
     g, a = gen[region].ravel(), art[region].ravel()
     gg = float(g @ g)
     scale = float(g @ a) / gg if gg > 0 else 0.0
     cos = float(g @ a) / max(np.sqrt(gg) * np.linalg.norm(a), 1e-30)
-    return cos, float(np.linalg.norm(scale * g - a) / np.linalg.norm(a)), scale
+    size = np.linalg.norm(a)
+    return cos, float(np.linalg.norm(scale * g - a) / size), scale, float(np.linalg.norm(g - a) / size)
 
 
 def set_summary(rows: dict) -> list[tuple]:
@@ -51,6 +56,26 @@ def set_summary(rows: dict) -> list[tuple]:
             worst = sorted(sel.items(), key=lambda kv: kv[1][0])[:4]
             out.append((label, len(sel), c, e, s, ", ".join(f"{n} {r[0]:.2f}" for n, r in worst)))
     return out
+
+
+def blinks(face, auto, artist) -> None:
+    """Per eye: how much of its opening the front view still shows after faceanim's and after the
+    artist's blink (``eye_opening``), and the blink's error as made against the artist's."""
+    from faceanim.rig.arkit import eye_opening, face_eyes
+
+    eyes = face_eyes(face)
+    print("\n| blink | eye seen at rest | open after faceanim's | open after the artist's | error as made |")
+    print("|---|---|---:|---:|---:|")
+    for slit, name in (("eye_L", "eyeBlinkLeft"), ("eye_R", "eyeBlinkRight")):
+        if name not in auto.shapes or name not in artist:
+            continue
+        rest = eye_opening(face, slit, eyes)
+        if rest is None:  # the front view finds no opening: whether a blink closes cannot be told
+            print(f"| {name} | no | | | {compare(auto.shapes[name], artist[name])[3]:.2f} |")
+            continue
+        left = [getattr(eye_opening(face, slit, eyes, face.mesh.vertices + d[name]), "area", 0.0) / rest.area
+                for d in (auto.shapes, artist)]
+        print(f"| {name} | yes | {left[0]:.1%} | {left[1]:.1%} | {compare(auto.shapes[name], artist[name])[3]:.2f} |")
 
 
 def load_avatar(path: Path):
@@ -98,8 +123,14 @@ def main(argv=None) -> None:
     for label, count, cos, err, scale, worst in set_summary(rows):
         print(f"| {label} | {count} | {cos:.2f} | {err:.2f} | {scale:.2f} | {worst} |")
     print()
-    for n, (c, e, s) in rows.items():
-        print(f"    {n}: cosine {c:.3f} best-scale error {e:.3f} scale {s:.2f}")
+    for n, (c, e, s, raw) in rows.items():
+        print(f"    {n}: cosine {c:.3f} best-scale error {e:.3f} scale {s:.2f} error as made {raw:.3f}")
+    pairs = [(n, n.replace("Left", "Right")) for n in rows if "Left" in n and n.replace("Left", "Right") in rows]
+    if pairs:
+        gap = max(pairs, key=lambda p: abs(rows[p[0]][0] - rows[p[1]][0]))
+        print(f"\nleft against right, {len(pairs)} pairs: the largest cosine difference "
+              f"{abs(rows[gap[0]][0] - rows[gap[1]][0]):.3f} ({gap[0]} {rows[gap[0]][0]:.3f}, {gap[1]} {rows[gap[1]][0]:.3f})")
+    blinks(face, auto, artist)
     if args.sheet:
         from faceanim.render import save_png
         from faceanim.render.gl import OffscreenRenderer
