@@ -25,7 +25,7 @@ import numpy as np
 
 from faceanim.face.face import Face
 from faceanim.face.generic_head import generic_head
-from faceanim.rig.mpeg4 import EYEBALL_OPEN as OPEN_EYE, boundary_share, fit_sphere
+from faceanim.rig.mpeg4 import EYEBALL_OPEN as OPEN_EYE, boundary_share
 from faceanim.rig.retarget import retarget
 from faceanim.rig.rig import Rig
 from faceanim.standards.arkit import LOOK_ANGLES, apple_name
@@ -100,9 +100,11 @@ def registered_eyes(face: Face) -> dict:
         on_eye = np.isin(head.mesh.faces[tri], part).all(axis=1) & ~skin
         if on_eye.any():
             rows = np.flatnonzero(on_eye)
-            ball, radius = fit_sphere(reg.vertices[part])
+            ball = reg.vertices[part]
+            radius = float(np.linalg.norm(ball - ball.mean(axis=0), axis=1).mean())
             closed = boundary_share(face.mesh, rows) < OPEN_EYE
-            centre = ball if closed else face.mesh.vertices[rows].mean(axis=0) - radius * face.frame.rotation[2]
+            centre = ball.mean(axis=0) if closed else \
+                face.mesh.vertices[rows].mean(axis=0) - radius * face.frame.rotation[2]
             out[side] = (rows, centre)
     return out
 

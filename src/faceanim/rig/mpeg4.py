@@ -71,8 +71,10 @@ EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)  # with thrust and pupil dilatio
 # edges on a boundary: sclera, cornea, iris) whose least-squares sphere leaves a spread of
 # distances under EYEBALL_SPHERE of its radius (a game avatar's low-poly eyeball, its vertices
 # crowded at the iris: their mean lies 0.6 radii in front of its centre); or any shell whose spread of distances from its vertices' mean is under
-# EYEBALL_ROUNDNESS of their mean (lashes and occlusion shells are neither). A closed shell turns
-# about its sphere's centre, an open one about its vertices' mean.
+# EYEBALL_ROUNDNESS of their mean (lashes and occlusion shells are neither). A shell round about
+# its vertices' mean turns about that mean (ICT's, 0.28 radii in front of its sphere's centre: the
+# gaze calibration of the video drivers is measured on it), one found by its sphere about the
+# sphere's centre.
 EYEBALL_MIN_VERTICES = 20
 EYEBALL_ROUNDNESS = 0.25
 EYEBALL_SPHERE = 0.15
@@ -125,7 +127,7 @@ def _find_eyeballs(mesh: Mesh, fp: FeaturePoints, on_skin: np.ndarray) -> dict:
             centre = p.mean(0)
             dist = np.linalg.norm(p - centre, axis=1)
             round_ = dist.std() < EYEBALL_ROUNDNESS * dist.mean()
-            if boundary_share(mesh, part) < EYEBALL_OPEN:
+            if not round_ and boundary_share(mesh, part) < EYEBALL_OPEN:
                 ball, radius = fit_sphere(p)
                 spread = np.linalg.norm(p - ball, axis=1)
                 if spread.std() < EYEBALL_SPHERE * radius:
