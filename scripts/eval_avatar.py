@@ -69,13 +69,14 @@ def blinks(face, auto, artist) -> None:
     for slit, name in (("eye_L", "eyeBlinkLeft"), ("eye_R", "eyeBlinkRight")):
         if name not in auto.shapes or name not in artist:
             continue
+        error = compare(auto.shapes[name], artist[name])[3]
         rest = eye_opening(face, slit, eyes)
         if rest is None:  # the front view finds no opening: whether a blink closes cannot be told
-            print(f"| {name} | no | | | {compare(auto.shapes[name], artist[name])[3]:.2f} |")
+            print(f"| {name} | no | | | {error:.2f} |")
             continue
         left = [getattr(eye_opening(face, slit, eyes, face.mesh.vertices + d[name]), "area", 0.0) / rest.area
                 for d in (auto.shapes, artist)]
-        print(f"| {name} | yes | {left[0]:.1%} | {left[1]:.1%} | {compare(auto.shapes[name], artist[name])[3]:.2f} |")
+        print(f"| {name} | yes | {left[0]:.1%} | {left[1]:.1%} | {error:.2f} |")
 
 
 def load_avatar(path: Path):

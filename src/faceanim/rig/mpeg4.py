@@ -72,10 +72,9 @@ EYEBALL_FAPS = (23, 24, 25, 26, 27, 28, 29, 30)  # with thrust and pupil dilatio
 # distances under EYEBALL_SPHERE of its radius (a game avatar's low-poly eyeball, its vertices
 # crowded at the iris: their mean lies 0.6 radii in front of its centre); or any shell whose
 # spread of distances from its vertices' mean is under EYEBALL_ROUNDNESS of their mean (lashes
-# and occlusion shells are neither). A shell round about
-# its vertices' mean turns about that mean (ICT's, 0.28 radii in front of its sphere's centre: the
-# gaze calibration of the video drivers is measured on it), one found by its sphere about the
-# sphere's centre.
+# and occlusion shells are neither). A shell round about its vertices' mean turns about that mean
+# (ICT's, 0.28 radii in front of its sphere's centre: the gaze calibration of the video drivers is
+# measured on it), one found by its sphere about the sphere's centre.
 EYEBALL_MIN_VERTICES = 20
 EYEBALL_ROUNDNESS = 0.25
 EYEBALL_SPHERE = 0.15
