@@ -12,11 +12,15 @@ scans, USC ICT, MIT licence: its notice ships as ``assets/LICENSE-ICT-FaceKit.tx
   (triangle + barycentric), so they follow any deformation of the head;
 - its 53 expression blendshapes (Apple ARKit names with ``_L``/``_R``) stored as sparse float16
   deltas (metres): they let the photo pipeline take the smile off a smiling photo;
-- ``tongueOut``, which ICT lacks (ARKit's 52nd shape), made here by geometry: ICT's tongue is
-  fused with its gums in one shell, so the tongue is the part of that shell away from the teeth
-  (over 3 mm) between the mouth floor and the palate, in front of the throat; it is pushed 3 cm
-  forward through the lips with its tip bending 6 mm down, the push fading in from the root and
-  out towards the gums (:func:`tongue_out`);
+- ``tongueOut``, which ICT lacks (ARKit's 52nd shape), made here by geometry as Apple's reference
+  shows it: the mouth open (ICT's ``jawOpen`` at 0.45: lips, jaw, teeth) and the tongue out over
+  the lower lip. ICT's tongue is fused with its gums in one shell, so the tongue is the part of
+  that shell away from the teeth (over 3 mm) between the mouth floor and the palate, in front of
+  the throat; it is pushed 4.5 cm forward, flattened to 8 mm and narrowed by a quarter as it
+  leaves the mouth, resting 2 mm above the lowered lower lip, its tip bending 4 mm down past the
+  lips; the push
+  fades in from the root and out towards the gums (:func:`tongue_out`). Pushed out with the lips
+  shut, the tongue went through them;
 - ICT's 100 PCA identity modes (``identity_modes.npz``: light-stage scans of many people; a head is
   ``neutral + sum_i w_i mode_i`` with ``w_i ~ N(0, 1)``), all 100 kept, each stored as int8 with a
   float32 scale of its own (metres per step): 4.5 MB in the asset, a sampled head within 0.1 mm
@@ -70,25 +74,38 @@ def obj_vertices(path: Path) -> np.ndarray:
 # the tongue in the generic head's frame (metres; the gums_tongue shell): what lies over TONGUE_GAP from
 # the teeth, between the mouth floor and the palate (heights) and in front of the throat (depth)
 TONGUE_GAP, TONGUE_FLOOR, TONGUE_TOP, TONGUE_ROOT, TONGUE_LENGTH = 0.003, -0.046, -0.026, 0.03, 0.045
-TONGUE_PUSH, TONGUE_DROP = 0.03, 0.006  # how far the tip goes forward and bends down
+TONGUE_JAW = 0.45  # how far tongueOut opens the mouth (of ICT's jawOpen)
+TONGUE_PUSH, TONGUE_DROP = 0.045, 0.004  # how far the tip goes forward and bends down
+TONGUE_THICK, TONGUE_NARROW = 0.008, 0.25  # the tongue's height out of the mouth; its width lost
+TONGUE_CLEAR = 0.002  # its underside over the lower inner lip
+TONGUE_LIP_DEPTH = 0.01  # the lips' depth from their inner edge: past it the tip bends down
 
 
-def tongue_out(vertices: np.ndarray) -> np.ndarray:
-    """(V, 3) the ``tongueOut`` displacement of the head ``vertices`` (metres, ICT's parts):
-    each tongue vertex moves forward by ``TONGUE_PUSH * w`` and down by ``TONGUE_DROP * w^2``,
-    ``w`` rising from 0 at the root to 1 at the tip and fading to 0 near the gums."""
+def tongue_out(vertices: np.ndarray, jaw: np.ndarray, lower_lip: np.ndarray, lower_lip_jaw: np.ndarray) -> np.ndarray:
+    """(V, 3) the ``tongueOut`` displacement of the head ``vertices`` (metres, ICT's parts), given
+    ICT's ``jawOpen`` displacement ``jaw`` (V, 3) and the lower inner lip's point ``lower_lip``
+    (MediaPipe's 14) with its ``jawOpen`` motion: the mouth opens by ``TONGUE_JAW`` of ``jaw``,
+    and each tongue vertex, with a weight ``w`` rising from 0 at the root to 1 at the tip and
+    fading to 0 near the gums, moves forward by ``TONGUE_PUSH * w``, towards its place in a
+    ``TONGUE_THICK`` slab resting over the opened lower lip (its height in the tongue kept) by
+    ``w``, in by ``TONGUE_NARROW * w`` of its width, and, once past the lips, down by up to
+    ``TONGUE_DROP`` over the lower lip."""
     from scipy.spatial import cKDTree
 
     from faceanim.face.regions import smoothstep
 
     g = np.arange(*PARTS["gums_tongue"])
     gap, _ = cKDTree(vertices[slice(*PARTS["teeth"])]).query(vertices[g])
-    y, z = vertices[g, 1], vertices[g, 2]
+    x, y, z = vertices[g, 0], vertices[g, 1], vertices[g, 2]
     tongue = (gap > TONGUE_GAP) & (y > TONGUE_FLOOR) & (y < TONGUE_TOP) & (z > TONGUE_ROOT)
     w = smoothstep((z - TONGUE_ROOT - 0.01) / TONGUE_LENGTH) * smoothstep((gap - TONGUE_GAP) / 0.004) * tongue
-    out = np.zeros_like(vertices)
-    out[g, 2] = TONGUE_PUSH * w
-    out[g, 1] = -TONGUE_DROP * w ** 2
+    out = TONGUE_JAW * np.asarray(jaw, dtype=np.float64)
+    height = np.clip((y - TONGUE_FLOOR) / (TONGUE_TOP - TONGUE_FLOOR), 0.0, 1.0)
+    slab = lower_lip[1] + TONGUE_JAW * lower_lip_jaw[1] + TONGUE_CLEAR + height * TONGUE_THICK
+    out[g, 2] += TONGUE_PUSH * w
+    past = z + out[g, 2] - lower_lip[2] - TONGUE_LIP_DEPTH  # how far out past the lips it ends
+    out[g, 1] += w * (slab - y - out[g, 1]) - TONGUE_DROP * smoothstep(past / TONGUE_LIP_DEPTH)
+    out[g, 0] -= TONGUE_NARROW * w * x
     return out
 
 
@@ -200,7 +217,9 @@ def main(argv=None) -> None:
         names.append(name)
     if len(names) != 53:
         raise SystemExit(f"expected the 53 ICT expression shapes, found {len(names)}")
-    delta = tongue_out(vertices)
+    jaw = obj_vertices(args.ict / "jawOpen.obj")[:KEEP] * CM - vertices
+    corners = faces[tri[14]]
+    delta = tongue_out(vertices, jaw, bary[14] @ vertices[corners], bary[14] @ jaw[corners])
     rows = np.flatnonzero(np.abs(delta).max(axis=1) > 1e-7)
     shapes["shape_rows_tongueOut"] = rows.astype(np.int32)
     shapes["shape_delta_tongueOut"] = delta[rows].astype(np.float16)

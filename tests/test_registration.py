@@ -112,34 +112,56 @@ def test_a_shuffled_generic_head_corresponds_vertex_for_vertex_to_itself():
     assert np.percentile(err, 95) < 0.005
 
 
-def test_tongue_out_pushes_the_tongue_out_through_the_lips():
-    """ARKit's tongueOut on the default face: only the tongue moves (no skin, no teeth), its tip
-    goes forward past the lips by over 2 cm at the default face's scale, and it is one of the 52
-    shapes ``faceanim rig`` writes."""
+def test_tongue_out_opens_the_mouth_and_puts_the_tongue_out_between_the_lips():
+    """ARKit's tongueOut on the default face, as Apple's reference shows it: the lips part (the
+    lower lip drops with the jaw, by a share of jawOpen), and the tongue goes over 1 cm past the
+    lips' front at the default face's scale, between the parted lips: no tongue vertex at the lips'
+    depth lies above the upper inner lip or below the lowered lower inner lip (pushed out with the
+    lips shut, the tongue went through them)."""
     from faceanim.autorig import auto_rig
+    from faceanim.rig.arkit import shows_tongue
 
     face = Face.default()
     auto = auto_rig(face, ["arkit"])
-    assert len(auto.sets["arkit"]) == 52 and "tongueOut" in auto.sets["arkit"]
-    d = auto.shapes["tongueOut"]
-    moving = np.linalg.norm(d, axis=1) > 1e-5
+    assert len(auto.sets["arkit"]) == 52 and "tongueOut" in auto.sets["arkit"] and not auto.notes
+    d, jaw = auto.shapes["tongueOut"], auto.shapes["jawOpen"]
+    assert shows_tongue(auto.shapes, face.frame.iod)
     skin = np.asarray(face.skin)
-    assert moving.any() and not (moving & skin).any()
-    fwd = face.frame.vectors_to_local(d)[:, 2]
-    assert fwd.max() > 0.02 * face.frame.iod / 0.0906  # 2 cm on the generic head's scale
-    tip = np.argmax(fwd)
-    lips = face.frame.to_local(face.landmarks[[13, 14]])[:, 2].max()
-    assert face.frame.to_local(face.mesh.vertices[tip] + d[tip])[2] > lips
+    share = np.sum(d[skin] * jaw[skin]) / np.sum(jaw[skin] ** 2)
+    assert 0.2 < share < 0.5 and np.abs(d[skin] - share * jaw[skin]).max() < 1e-3 * face.frame.iod
+    lips = face.frame.to_local(generic_head().landmarks(face.mesh.vertices + d)[[13, 14]])  # its topology
+    rest = face.frame.to_local(face.landmarks[[13, 14]])
+    assert lips[0, 1] - lips[1, 1] > 0.1 * face.frame.iod  # parted
+    moved = face.frame.to_local(face.mesh.vertices + d)
+    iod = face.frame.iod
+    lower_lip = skin & (np.abs(moved[:, 0] - lips[1, 0]) < 0.1 * iod) & (np.abs(moved[:, 1] - lips[1, 1]) < 0.15 * iod)
+    inner, outer = rest[:, 2].max(), moved[lower_lip, 2].max()  # the lips' depth: inner edge to front
+    tongue = ~skin & (np.linalg.norm(d - share * jaw, axis=1) > 1e-3 * iod)
+    assert moved[tongue, 2].max() - outer > 0.01 * iod / 0.0906  # over 1 cm past the lips
+    # the tongue's cross-section halfway through the lips: where its edges cross that depth
+    f = face.mesh.faces[tongue[face.mesh.faces].all(axis=1)]
+    a, b = moved[np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])].transpose(1, 0, 2)
+    depth = (inner + outer) / 2
+    t = (depth - a[:, 2]) / np.where(a[:, 2] == b[:, 2], np.nan, b[:, 2] - a[:, 2])
+    cross = (a + t[:, None] * (b - a))[(t >= 0) & (t <= 1)]
+    assert len(cross) > 10
+    assert (cross[:, 1] < lips[0, 1]).all() and (cross[:, 1] > lips[1, 1]).all()
 
 
 @pytest.mark.skipif(not (ICT.parent / "facewarehouse-tester1").is_dir(), reason="FaceWarehouse scans are not here")
-def test_a_scan_without_a_mouth_inside_gets_no_tongue_out_and_says_why():
-    from faceanim.rig.arkit import arkit_shapes
+def test_a_scan_without_a_mouth_inside_gets_the_opening_of_tongue_out_and_is_told():
+    """A FaceWarehouse scan has no tongue: its tongueOut is the mouth opening alone (a share of
+    its own jawOpen, nothing else moves), and faceanim rig says so."""
+    from faceanim.autorig import auto_rig
+    from faceanim.rig.arkit import NO_TONGUE, shows_tongue
 
     face = Face.load(ICT.parent / "facewarehouse-tester1" / "pose_0.obj")
-    shapes, skipped = arkit_shapes(face)
-    assert "tongueOut" not in shapes and "no tongue" in skipped["tongueOut"]
-    assert len(shapes) == 51
+    auto = auto_rig(face, ["arkit"])
+    assert len(auto.sets["arkit"]) == 52 and not auto.skipped
+    d, jaw = auto.shapes["tongueOut"], auto.shapes["jawOpen"]
+    share = np.sum(d * jaw) / np.sum(jaw ** 2)
+    assert 0.2 < share < 0.5 and np.abs(d - share * jaw).max() < 1e-3 * face.frame.iod
+    assert not shows_tongue(auto.shapes, face.frame.iod) and auto.notes == {"tongueOut": NO_TONGUE}
 
 
 def _nonfaces():

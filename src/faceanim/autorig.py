@@ -11,9 +11,9 @@ The sets (:data:`RIG_SETS`), each built from the input mesh and its landmarks al
   registration's similarity): no shape is copied, every displacement is rebuilt on the face's
   own surface. The ``eyeLook*`` shapes also turn the eyeballs when the mesh has them (ICT's own
   move only the lids): by the angles a real Live Link Face take records for a look curve at 1
-  (:data:`~faceanim.standards.arkit.LOOK_ANGLES`). ``tongueOut`` (which ICT lacks) comes from the
-  generic head's tongue pushed out (faceanim's own); a mesh with nothing in its mouth to carry it
-  to gets none, reported.
+  (:data:`~faceanim.standards.arkit.LOOK_ANGLES`). ``tongueOut`` (which ICT lacks) is the generic
+  head's own: the mouth opened and the tongue put out over the lower lip; a mesh with nothing in
+  its mouth gets the opening alone, and is told so (``notes``).
 - ``visemes``: the 15 Oculus visemes (``viseme_sil`` ... ``viseme_U``, MPEG-4's visemes 0-14)
   as mixes of the face's own ARKit shapes (``data/visemes_arkit.json``): posed by the FAP rig
   they came out as grimaces (a review's pictures); the ARKit shapes keep jaw, lips and teeth
@@ -54,13 +54,15 @@ HEAD_FAPS = ("head_pitch", "head_yaw", "head_roll")  # the whole head turning: a
 class AutoRig:
     """A face's generated controls: ``shapes`` name -> (V, 3) displacement at weight 1, ``sets``
     set name -> its names (in order), ``skipped`` name -> why it could not be made on this face,
-    ``eyes`` whether the mesh has eyeballs faceanim turns."""
+    ``eyes`` whether the mesh has eyeballs faceanim turns, ``notes`` name -> what a shape made
+    does on this face when that is less than its name says (``tongueOut`` without a tongue)."""
 
     face: Face
     shapes: dict[str, np.ndarray]
     sets: dict[str, list[str]]
     skipped: dict[str, str] = field(default_factory=dict)
     eyes: bool = False
+    notes: dict[str, str] = field(default_factory=dict)
 
     def rig(self) -> Rig:
         return Rig.from_blendshapes(self.face.mesh, self.shapes)
@@ -111,7 +113,7 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
     """Every control of ``sets`` on ``face`` as named shapes (module docstring). ``progress``:
     an optional callable taking the name of each set as it starts."""
     from faceanim.standards.mpeg4 import faps
-    from faceanim.rig.arkit import arkit_shapes
+    from faceanim.rig.arkit import NO_TONGUE, arkit_shapes, shows_tongue
     from faceanim.rig.mpeg4 import FapRig
     from faceanim.rig.transfer import ExpressionTransfer, default_model
 
@@ -129,6 +131,7 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
     shapes: dict[str, np.ndarray] = {}
     groups: dict[str, list[str]] = {}
     skipped: dict[str, str] = {}
+    notes: dict[str, str] = {}
 
     def pose(values: dict[int, float]) -> np.ndarray:
         curves = np.zeros((1, fap.n_controls))
@@ -151,6 +154,8 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
             arkit = made
             add(group, made)
             skipped.update(why)
+            if "tongueOut" in made and not shows_tongue(made, face.frame.iod):
+                notes["tongueOut"] = NO_TONGUE
         elif group in ("visemes", "rpm"):
             if arkit is None:
                 arkit, _ = arkit_shapes(face, eyes)
@@ -175,7 +180,8 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
                 value = scale.get(f.number) or (FAP_ANGLE_DEFAULT if f.is_rotation else FAP_DISTANCE_DEFAULT)
                 made[f.name] = pose({f.number: value})
             add(group, made)
-    return AutoRig(face, shapes, groups, skipped, eyes=bool(eyes) and all(eyes.get(s) is not None for s in "LR"))
+    return AutoRig(face, shapes, groups, skipped, eyes=bool(eyes) and all(eyes.get(s) is not None for s in "LR"),
+                   notes=notes)
 
 
 # VRM 1.0's expression presets from the targets above: (preset, {target: weight}), the first

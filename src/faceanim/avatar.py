@@ -44,6 +44,7 @@ class AvatarRig:
     skipped: dict = field(default_factory=dict)
     face: object = None
     replaced: list[str] = field(default_factory=list)
+    notes: dict = field(default_factory=dict)
 
 
 def _is_head_name(name: str) -> bool:
@@ -158,7 +159,7 @@ def rig_avatar(source, output, sets, head_mesh: str | None = None, replace: bool
         notes["expressions"] = "VRM 0.x: the targets are added, its blend shape groups are left as they were"
     write_scene(scene, output, additions, replace=replace)
     return AvatarRig(info[head].name, [info[m].name for m in companions], names, kept, {**auto.skipped, **notes}, face,
-                     [n for n in names if n in existing])
+                     [n for n in names if n in existing], auto.notes)
 
 
 def _target_index(existing: tuple, added: list[str]) -> dict[str, int]:

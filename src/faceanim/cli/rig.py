@@ -32,7 +32,9 @@ def _meta_text(flag: str):
     return parse
 
 
-def _report_skipped(skipped: dict) -> None:
+def _report_skipped(skipped: dict, notes: dict | None = None) -> None:
+    for name, what in (notes or {}).items():
+        print(f"{name} on this face: {what}", file=sys.stderr)
     if skipped:
         by_reason: dict[str, list[str]] = {}
         for name, why in skipped.items():
@@ -65,7 +67,7 @@ def _cmd_avatar(args, sets, source: Path, out: Path) -> None:
     if done.kept:
         print(f"kept the avatar's own targets (--replace to overwrite): {', '.join(done.kept[:12])}"
               + (" ..." if len(done.kept) > 12 else ""), file=sys.stderr)
-    _report_skipped(done.skipped)
+    _report_skipped(done.skipped, done.notes)
     report([out])
 
 
@@ -134,7 +136,7 @@ def _cmd_rig(args) -> None:
     if left_out:
         print("VRM presets left out: " + "; ".join(f"{p} ({why})" for p, why in left_out.items()), file=sys.stderr)
     print(f"{len(auto.shapes)} morph targets ({counts})")
-    _report_skipped(auto.skipped)
+    _report_skipped(auto.skipped, auto.notes)
     report([written])
 
 

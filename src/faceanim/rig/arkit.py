@@ -2,7 +2,9 @@
 recordings.
 
 The generic head (ICT FaceKit) carries artist-made shapes for 51 of ARKit's 52 blendshapes, and a
-``tongueOut`` faceanim makes from the tongue's geometry (``scripts/build_generic_head.py``).
+``tongueOut`` faceanim makes from the tongue's geometry (``scripts/build_generic_head.py``): the
+mouth opened, the tongue out over the lower lip, as Apple's reference shows it. A mesh with no
+tongue gets the opening alone (:func:`shows_tongue` tells).
 :func:`arkit_rig` moves them onto any face with the retargeting of :mod:`faceanim.rig.retarget`
 (the face's registration: dense correspondence part by part, motion carried by its similarity:
 Chai et al. 2003, section 5, applied to named shapes, as Noh and Neumann's expression cloning
@@ -341,11 +343,22 @@ def _arkit_shapes(face: Face, eyes: dict | None) -> tuple[dict[str, np.ndarray],
     for slit, name in (("eye_L", "eyeBlinkLeft"), ("eye_R", "eyeBlinkRight")):
         shapes[name] = closed_blink(face, shapes[name], slit, eyes)
     skipped = {n: "no learned pattern: the generic head has no such shape" for n in missing}
-    tongue = shapes.get("tongueOut")
-    if tongue is not None and np.linalg.norm(tongue, axis=1).max() < STILL * face.frame.iod:
-        del shapes["tongueOut"]  # a mesh without a tongue inside its mouth (a scan, a mask)
-        skipped["tongueOut"] = "the mesh has no tongue: nothing inside its mouth corresponds to the generic head's"
     return shapes, skipped
 
 
-STILL = 1e-3  # a shape that moves no vertex further than this (inter-ocular distances) is not made
+STILL = 1e-3  # motion under this (inter-ocular distances) is no motion
+NO_TONGUE = "opens the lips and jaw as Apple's reference does; the mesh has no tongue to put out"
+
+
+def shows_tongue(shapes: dict[str, np.ndarray], iod: float) -> bool:
+    """Whether ``tongueOut`` in ``shapes`` (:func:`arkit_shapes`) puts out a tongue: moves some
+    vertex further than ``STILL`` inter-ocular distances beyond what the mouth opening it carries
+    (the generic head's ``tongueOut`` opens the mouth by a share of ``jawOpen``) moves it. A scan
+    or a mask, nothing inside its mouth, gets only the opening."""
+    tongue, jaw = shapes.get("tongueOut"), shapes.get("jawOpen")
+    if tongue is None:
+        return False
+    if jaw is None or not np.any(jaw):
+        return bool(np.linalg.norm(tongue, axis=1).max() > STILL * iod)
+    share = float(np.sum(tongue * jaw) / np.sum(jaw * jaw))
+    return bool(np.linalg.norm(tongue - share * jaw, axis=1).max() > STILL * iod)
