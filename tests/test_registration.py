@@ -280,3 +280,16 @@ def test_weighted_similarity_ignores_points_of_weight_zero():
     assert s == pytest.approx(2.5, rel=1e-9) and np.allclose(fr, r, atol=1e-9) and np.allclose(t, [1, -2, 3])
     s0, _, _ = similarity(a, b)
     assert abs(s0 - 2.5) > 0.05
+
+
+def test_an_open_mouth_is_fitted_as_jaw_open_not_as_tongue_out():
+    """tongueOut carries a share of jawOpen: the landmark fit must not split an open mouth between
+    them (the registered head would put out its tongue)."""
+    from faceanim.face.registration import fit_landmarks
+
+    head = generic_head()
+    names = list(head.shape_names)
+    opened = head.landmarks(head.mesh.vertices + 0.8 * head.shape("jawOpen"))
+    _, _, _, x, _ = fit_landmarks(opened, head)
+    weights = dict(zip(names, x[head.n_identity:]))
+    assert weights["tongueOut"] == 0 and weights["jawOpen"] > 0.5

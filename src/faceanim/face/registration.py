@@ -125,21 +125,30 @@ class Registration:
         return self.scale * spread
 
 
+# faceanim's own tongueOut is no measured expression: it opens the mouth by a share of jawOpen
+# (the fit would split an open mouth between the two) and puts out a tongue no landmark sees
+NOT_FITTED = ("tongueOut",)
+
+
 def _basis(head: GenericHead, rows: np.ndarray | None = None, matrix: sp.spmatrix | None = None):
     """The morphable model at some points: (mean (N, 3), basis (N, 3, K + E)) with identity modes
-    first, then expression shapes; at vertices ``rows`` or at ``matrix @ vertices``."""
+    first, then expression shapes; at vertices ``rows`` or at ``matrix @ vertices``. The shapes
+    of :data:`NOT_FITTED` have zero columns (their weight stays 0)."""
     ident = head.identity_basis()  # (K, V, 3)
     names = head.shape_names
+
+    def shape(n: str) -> np.ndarray:
+        return np.zeros_like(head.mesh.vertices) if n in NOT_FITTED else head.shape(n)
     if matrix is not None:
         cols = np.unique(matrix.indices)
         m = matrix[:, cols]
         mean = m @ head.mesh.vertices[cols]
         ib = np.stack([m @ ident[k, cols].astype(np.float64) for k in range(len(ident))], axis=-1)
-        eb = np.stack([m @ head.shape(n)[cols] for n in names], axis=-1)
+        eb = np.stack([m @ shape(n)[cols] for n in names], axis=-1)
     else:
         mean = head.mesh.vertices[rows]
         ib = np.moveaxis(ident[:, rows].astype(np.float64), 0, -1)
-        eb = np.stack([head.shape(n)[rows] for n in names], axis=-1)
+        eb = np.stack([shape(n)[rows] for n in names], axis=-1)
     return mean, np.concatenate([ib, eb], axis=-1)
 
 
