@@ -79,7 +79,7 @@ def blinks(face, auto, artist) -> None:
         print(f"| {name} | yes | {left[0]:.1%} | {left[1]:.1%} | {error:.2f} |")
 
 
-def load_avatar(path: Path):
+def load_avatar(path: Path, style: str = "realistic"):
     """(the avatar's head welded into one Face, faceanim's rig of it (``auto_rig`` ARKit +
     visemes), the artist's shapes of the same names on the welded face, the names of the
     artist's shapes that move nothing, the seconds the rig took)."""
@@ -88,7 +88,7 @@ def load_avatar(path: Path):
     head, companions = find_head(scene)
     meshes = [head, *companions]
     face, parts = avatar_face(scene, meshes)
-    auto = auto_rig(face, ["arkit", "visemes"])
+    auto = auto_rig(face, ["arkit", "visemes"], style=style)
     took = time.perf_counter() - t
     # the artist's targets on the welded face (each welded vertex: its first merged copy)
     art_rows = []
@@ -112,8 +112,10 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("avatar", type=Path)
     ap.add_argument("--sheet", type=Path, help="write a picture sheet (artist's row, faceanim's row) here")
+    ap.add_argument("--style", choices=("realistic", "stylised"), default="realistic",
+                    help="faceanim rig's --style (the blinks' lids)")
     args = ap.parse_args(argv)
-    face, auto, artist, empty, took = load_avatar(args.avatar)
+    face, auto, artist, empty, took = load_avatar(args.avatar, args.style)
     names = list(artist)
     rows = {n: compare(auto.shapes[n], artist[n]) for n in names if n not in empty}
     print(f"{face.mesh.name}: {face.mesh.n_vertices} welded vertices, rig {took:.1f} s "

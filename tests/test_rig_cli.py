@@ -334,6 +334,50 @@ def test_a_blink_closes_the_eye(which):
         assert 0.25 * rest < half.area < 0.75 * rest, name
 
 
+def test_a_stylised_blink_draws_a_short_lid_sheet():
+    """``--style stylised``: the eye still shuts, the upper lid's skin more than LID_SHEET of the
+    tallest opening above its margin stays where it is down the face (a realistic blink moves it:
+    ICT's lid folds a band as tall as the opening), and the margin travels to the lids' meeting
+    line. An unknown style is refused."""
+    from faceanim.errors import FaceAnimError
+    from faceanim.rig.arkit import LID_MEET, LID_SHEET, arkit_shapes, eye_opening, face_eyes
+
+    face = Face.default()
+    eyes = face_eyes(face)
+    real, _ = arkit_shapes(face, eyes)
+    styl, _ = arkit_shapes(face, eyes, "stylised")
+    fr = face.frame
+    local = fr.to_local(face.mesh.vertices)
+    for slit, name in (("eye_L", "eyeBlinkLeft"), ("eye_R", "eyeBlinkRight")):
+        op = eye_opening(face, slit, eyes)
+        shut = eye_opening(face, slit, eyes, face.mesh.vertices + styl[name])
+        assert (shut.area if shut else 0.0) < 0.05 * op.area, name
+        o = op.height > 0
+        up, lo = fr.to_local(op.upper[o])[:, 1], fr.to_local(op.lower[o])[:, 1]
+        tallest = float((up - lo).max())
+        xs = op.x[o]
+        inner = (local[:, 0] > xs[2]) & (local[:, 0] < xs[-3]) & np.asarray(face.skin)
+        margin = np.interp(local[:, 0], xs, up)
+        above = inner & (local[:, 1] > margin + 1.2 * LID_SHEET * tallest) & (local[:, 1] < margin + tallest) \
+            & (local[:, 2] > np.interp(local[:, 0], xs, fr.to_local(op.upper[o])[:, 2]) - 0.5 * np.ptp(xs))
+        assert above.sum() > 5
+        down = fr.rotation[1]
+        assert np.abs(styl[name][above] @ down).max() < 1e-9, name
+        assert np.abs(real[name][above] @ down).max() > 0.05 * tallest, name
+        # the upper margin itself: down by LID_MEET of the opening where it is tallest
+        j = int(np.argmax(up - lo))
+        tri = op.upper_tri[o][j]
+        corner = face.mesh.faces[tri]
+        travel = float(np.mean(styl[name][corner] @ down))
+        assert travel == pytest.approx(-LID_MEET * (up - lo)[j], rel=0.25), name
+    with pytest.raises(FaceAnimError, match="unknown style"):
+        arkit_shapes(face, eyes, "cartoon")
+    from faceanim.cli.rig import BLINK_STYLES
+    from faceanim.rig.arkit import STYLES
+
+    assert BLINK_STYLES == STYLES  # the CLI's choices, kept apart so that it starts light
+
+
 @pytest.mark.parametrize("name", ["happy", "", "a\x1bb", "x" * 65])
 def test_a_custom_vrm_expression_needs_its_own_printable_name(tmp_path, name):
     from faceanim.errors import FaceAnimError

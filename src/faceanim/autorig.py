@@ -109,9 +109,10 @@ def _fap_scales() -> dict[int, float]:
     return out
 
 
-def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
+def auto_rig(face: Face, sets=RIG_SETS, progress=None, style: str = "realistic") -> AutoRig:
     """Every control of ``sets`` on ``face`` as named shapes (module docstring). ``progress``:
-    an optional callable taking the name of each set as it starts."""
+    an optional callable taking the name of each set as it starts; ``style``: the blinks' lids,
+    realistic or stylised (:func:`~faceanim.rig.arkit.closed_blink`)."""
     from faceanim.standards.mpeg4 import faps
     from faceanim.rig.arkit import NO_TONGUE, arkit_shapes, shows_tongue
     from faceanim.rig.mpeg4 import FapRig
@@ -150,7 +151,7 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
         if progress is not None:
             progress(group)
         if group == "arkit":
-            made, why = arkit_shapes(face, eyes)
+            made, why = arkit_shapes(face, eyes, style)
             arkit = made
             add(group, made)
             skipped.update(why)
@@ -158,7 +159,7 @@ def auto_rig(face: Face, sets=RIG_SETS, progress=None) -> AutoRig:
                 notes["tongueOut"] = NO_TONGUE
         elif group in ("visemes", "rpm"):
             if arkit is None:
-                arkit, _ = arkit_shapes(face, eyes)
+                arkit, _ = arkit_shapes(face, eyes, style)
             mixes = ({f"viseme_{v['oculus']}": v["arkit"] for v in viseme_mixes()} if group == "visemes"
                      else RPM_EXTRAS)
             add(group, {name: sum((w * arkit[n] for n, w in mix.items() if n in arkit), np.zeros_like(rest))

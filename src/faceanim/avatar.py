@@ -129,7 +129,7 @@ def avatar_face(scene, meshes: list[int], forward: str = "+z", up: str = "+y"):
 
 
 def rig_avatar(source, output, sets, head_mesh: str | None = None, replace: bool = False,
-               forward: str | None = None, up: str = "+y", progress=None) -> AvatarRig:
+               forward: str | None = None, up: str = "+y", progress=None, style: str = "realistic") -> AvatarRig:
     """Rig the head of the avatar file ``source`` in place and write it to ``output`` (module
     docstring). ``forward``: where the face looks (default +z; a VRM 0.x avatar faces -z)."""
     from faceanim.autorig import auto_rig
@@ -141,7 +141,7 @@ def rig_avatar(source, output, sets, head_mesh: str | None = None, replace: bool
     head, companions = find_head(scene, head_mesh, forward, up)
     meshes = [head, *companions]
     face, parts = avatar_face(scene, meshes, forward, up)
-    auto = auto_rig(face, sets, progress=progress)
+    auto = auto_rig(face, sets, progress=progress, style=style)
     info = {m.index: m for m in scene.meshes()}
     existing = set()
     for mi in meshes:

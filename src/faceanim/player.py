@@ -137,7 +137,10 @@ def arkit_from_stream(face: Face, rig: FapRig, stream: FapStream) -> tuple[np.nd
     from faceanim.rig.arkit import arkit_shapes
     from faceanim.standards.arkit import apple_name
 
-    arkit = Rig.from_blendshapes(face.mesh, arkit_shapes(face, rig.eyes)[0])
+    # tongueOut is not fitted: it opens the mouth by a share of jawOpen (a FAP jaw would be split
+    # between the two) and the FAP rig puts out no tongue
+    shapes = arkit_shapes(face, rig.eyes)[0]
+    arkit = Rig.from_blendshapes(face.mesh, {n: d for n, d in shapes.items() if n != "tongueOut"})
     curves = rig.stream_curves(stream)
     index = {f.name: f.number - 1 for f in faps()}
     head = np.stack([curves[:, index[n]] for n in ("head_yaw", "head_pitch", "head_roll")], axis=1) * 1e-5

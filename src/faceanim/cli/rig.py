@@ -21,6 +21,8 @@ from faceanim.cli.common import (
 from faceanim.cli.mesh import _axes
 from faceanim.errors import shown
 
+BLINK_STYLES = ("realistic", "stylised")  # faceanim.rig.arkit.STYLES (not imported here: the CLI starts light)
+
 VRM_TEXT_LIMIT = 200  # characters of a VRM meta field given on the command line
 
 
@@ -60,7 +62,8 @@ def _cmd_avatar(args, sets, source: Path, out: Path) -> None:
                            "its own VRM version and licence")
     check_outputs(args.output)
     forward = None if args.forward == "+z" and args.up == "+y" else args.forward
-    done = rig_avatar(source, out, sets, head_mesh=args.head_mesh, replace=args.replace, forward=forward, up=args.up)
+    done = rig_avatar(source, out, sets, head_mesh=args.head_mesh, replace=args.replace, forward=forward, up=args.up,
+                      style=args.style)
     rigged = " + ".join([done.head, *done.companions])
     replaced = f" ({len(done.replaced)} replacing its own)" if done.replaced else ""
     print(f"{len(done.written)} morph targets written to {rigged}{replaced}")
@@ -128,7 +131,7 @@ def _cmd_rig(args) -> None:
     with stages("rig", len(sets) + 2, args.quiet) as step:
         step("the face and its landmarks")
         face = load_face(args)
-        auto = auto_rig(face, sets, progress=step)
+        auto = auto_rig(face, sets, progress=step, style=args.style)
         step(f"writing {out.name}")
         written, left_out = write_rigged(out, auto, compact=args.compact, meta=_meta(args, face),
                                          vrm_version=1 if args.vrm is None else args.vrm)
@@ -161,6 +164,10 @@ def register(sub) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress on the terminal")
     p.add_argument("--compact", action="store_true",
                    help="quantised .glb (KHR_mesh_quantization): smaller, for delivery")
+    p.add_argument("--style", choices=BLINK_STYLES, default="realistic",
+                   help="how the blinks close the lids: realistic (a person's tall upper lid folding down; "
+                        "scans, the default face, photo heads) or stylised (a game or anime avatar's short lid "
+                        "sheet: the margin travels, the skin above barely) (default: realistic)")
     p.add_argument("--head-mesh", metavar="NAME",
                    help="a whole avatar: the mesh that is the head (default: found by name, else by geometry)")
     p.add_argument("--replace", action="store_true",

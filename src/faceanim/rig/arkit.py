@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from faceanim.errors import FaceAnimError, shown
 from faceanim.face.face import Face
 from faceanim.face.generic_head import generic_head
 from faceanim.rig.mpeg4 import EYEBALL_OPEN as OPEN_EYE, boundary_share
@@ -215,7 +216,7 @@ def eye_opening(face: Face, slit: str, eyes: dict, vertices: np.ndarray | None =
     return res if res.height.any() else None
 
 
-def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.ndarray:
+def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict, reach: tuple | None = None) -> np.ndarray:
     """The correction that makes a carried blink close the eye: ICT's lids travel ICT's eye
     opening, which on another face leaves a slit (40% of it on the default face; half an anime
     eye). The opening is found in the front view (:func:`eye_opening`), at rest and as the carried
@@ -227,7 +228,8 @@ def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.nda
     fully up to its margin, fading to nothing above (below) it over :data:`LID_REACH` slit widths
     (the upper lid) or a third of that (the lower): a sheet drawn over the eye, no lumps. The
     lids move down the face only, at the depth the carried blink leaves them: the whole 3D gap
-    would draw an overhanging anime lid back into the head."""
+    would draw an overhanging anime lid back into the head. ``reach``: (upper, lower) fade
+    heights instead (a stylised lid's short sheet, :func:`_lid_sheet`)."""
     from faceanim.face.regions import smoothstep
 
     op = eye_opening(face, slit, eyes)
@@ -258,32 +260,87 @@ def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.nda
     for part in (eyes or {}).values():
         if part is not None:
             near[part[0]] = False
-    reach = max(LID_REACH * width, LID_STRETCH * float(gap.max()))
+    if reach is None:
+        tall = max(LID_REACH * width, LID_STRETCH * float(gap.max()))
+        reach = (tall, tall / 3)
     up = near & (yv > middle)
     lo = near & (yv <= middle)
-    fade_up = np.where(yv <= upper_margin, 1.0, smoothstep(1.0 - (yv - upper_margin) / reach))
-    fade_lo = np.where(yv >= lower_margin, 1.0, smoothstep(1.0 - (lower_margin - yv) / (reach / 3)))
+    fade_up = np.where(yv <= upper_margin, 1.0, smoothstep(1.0 - (yv - upper_margin) / reach[0]))
+    fade_lo = np.where(yv >= lower_margin, 1.0, smoothstep(1.0 - (lower_margin - yv) / reach[1]))
     dy = np.where(up, -LID_MEET * g * fade_up, 0.0) + np.where(lo, (1.0 - LID_MEET) * g * fade_lo, 0.0)
     return dy[:, None] * fr.rotation[1]
+
+
+STYLES = ("realistic", "stylised")
+# a stylised lid (a game or anime avatar's) is a short sheet: its margin travels, the skin above it
+# barely; these are its heights over the upper (under the lower) margin, in tallest openings
+LID_SHEET, LID_SHEET_LOWER = 0.4, 0.2
+
+
+def _lid_sheet(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.ndarray:
+    """``blink`` with its motion down the face over the lids replaced by a stylised lid's: each
+    lid's margin goes to the line where the lids meet (:data:`LID_MEET` of the opening down from
+    the upper margin), the skin above (below) following less and less over :data:`LID_SHEET`
+    (:data:`LID_SHEET_LOWER`) of the tallest opening; its motion along and into the face is kept.
+    Measured on Ready Player Me's avatar, its artist's blink moves the upper lid's skin a third of
+    the opening above the margin by a tenth of the margin's travel; ICT's real lid (and the
+    carried blink) moves a band as tall as the opening."""
+    from faceanim.face.regions import smoothstep
+
+    op = eye_opening(face, slit, eyes)
+    if op is None:
+        return blink
+    fr = face.frame
+    open_ = op.height > 0
+    up_y, lo_y = (fr.to_local(m[open_])[:, 1] for m in (op.upper, op.lower))
+    x = op.x[open_]
+    width, tallest = float(x.max() - x.min()), float((up_y - lo_y).max())
+    local = fr.to_local(face.mesh.vertices)
+    xv, yv = local[:, 0], local[:, 1]
+    upper, lower = np.interp(xv, x, up_y), np.interp(xv, x, lo_y)
+    meet = lower + (1.0 - LID_MEET) * (upper - lower)
+    depth = np.interp(xv, x, fr.to_local(op.upper[open_])[:, 2])
+    near = (xv > x.min()) & (xv < x.max()) & (local[:, 2] > depth - 0.5 * width)  # not the back of the head
+    for part in (eyes or {}).values():
+        if part is not None:
+            near[part[0]] = False
+    middle = 0.5 * (upper + lower)
+    up, lo = near & (yv > middle), near & (yv <= middle)
+    fade_up = np.where(yv <= upper, 1.0, smoothstep(1.0 - (yv - upper) / (LID_SHEET * tallest)))
+    fade_lo = np.where(yv >= lower, 1.0, smoothstep(1.0 - (lower - yv) / (LID_SHEET_LOWER * tallest)))
+    target = np.where(up, (meet - upper) * fade_up, 0.0) + np.where(lo, (meet - lower) * fade_lo, 0.0)
+    down = fr.rotation[1]
+    return blink + ((target - blink @ down) * (up | lo))[:, None] * down
 
 
 LID_PASSES = 2  # closures at most: a second closes what the first left, if the first did close
 LID_SHUT = 0.02  # an eye showing less than this share of its opening is shut
 
 
-def closed_blink(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.ndarray:
+def closed_blink(face: Face, blink: np.ndarray, slit: str, eyes: dict, style: str = "realistic") -> np.ndarray:
     """A carried blink with its lids closed by :func:`_lid_closure`, then, while an eye still shows
     more than :data:`LID_SHUT` of its opening and the pass before at least halved what was left,
     again (up to :data:`LID_PASSES`): one pass can leave a tenth of an anime eye open where the
     lids' meeting line is off by a ray's spacing. A pass that hardly closes anything (the opening
-    measure sees through a mesh's transparent eye overlays) is not repeated."""
+    measure sees through a mesh's transparent eye overlays) is not repeated. ``style``
+    "stylised": the lids first drawn as a short sheet (:func:`_lid_sheet`), what it leaves open
+    closed the same way within the sheet."""
+    if style not in STYLES:
+        raise FaceAnimError(f"unknown style '{shown(style)}'; use one of {', '.join(STYLES)}")
     rest = eye_opening(face, slit, eyes)
     if rest is None or rest.area <= 0:
         return blink
+    reach = None
+    if style == "stylised":
+        blink = _lid_sheet(face, blink, slit, eyes)
+        tallest = float(np.max(rest.height))
+        reach = (LID_SHEET * tallest, LID_SHEET_LOWER * tallest)
     area = lambda d: getattr(eye_opening(face, slit, eyes, face.mesh.vertices + d), "area", 0.0)  # noqa: E731
     before = area(blink)
+    if before <= LID_SHUT * rest.area:
+        return blink
     for k in range(LID_PASSES):
-        blink = blink + _lid_closure(face, blink, slit, eyes)
+        blink = blink + _lid_closure(face, blink, slit, eyes, reach)
         if k + 1 == LID_PASSES:
             break
         after = area(blink)
@@ -293,16 +350,16 @@ def closed_blink(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.nda
     return blink
 
 
-def blink_shapes(face: Face, eyes: dict | None = None) -> dict[str, np.ndarray]:
+def blink_shapes(face: Face, eyes: dict | None = None, style: str = "realistic") -> dict[str, np.ndarray]:
     """``eyeBlinkLeft`` and ``eyeBlinkRight`` alone, as :func:`arkit_shapes` makes them (ICT's
     blinks carried, then closed by :func:`_lid_closure`), for drivers that need only the lids.
-    ``eyes``: the eye pieces (:func:`face_eyes` when not given)."""
+    ``eyes``: the eye pieces (:func:`face_eyes` when not given); ``style``: :func:`closed_blink`'s."""
     names = ["eyeBlink_L", "eyeBlink_R"]
     ict = retarget(face, np.eye(2), names, names=names)
     eyes = face_eyes(face) if eyes is None else eyes
     out = {}
     for slit, ict_name_, name in (("eye_L", "eyeBlink_L", "eyeBlinkLeft"), ("eye_R", "eyeBlink_R", "eyeBlinkRight")):
-        out[name] = closed_blink(face, ict.blendshape(ict_name_), slit, eyes)
+        out[name] = closed_blink(face, ict.blendshape(ict_name_), slit, eyes, style)
     return out
 
 
@@ -320,28 +377,33 @@ def look_shapes(face: Face, eyes: dict | None = None) -> dict[str, np.ndarray]:
     return out
 
 
-def arkit_shapes(face: Face, eyes: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+def arkit_shapes(face: Face, eyes: dict | None = None, style: str = "realistic"
+                 ) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """ARKit's shapes on ``face``: :func:`arkit_rig`'s, with the ``eyeLook*`` shapes also turning
     the eyeballs ``eyes`` (:attr:`FapRig.eyes <faceanim.rig.mpeg4.FapRig>`; found when not given),
-    and the names it cannot make, with why. Kept in the user cache (:mod:`faceanim.io.cache`): the
-    same mesh, landmarks and eyes with the same faceanim give them back without the work."""
+    the blinks closed in ``style`` (:func:`closed_blink`), and the names it cannot make, with why.
+    Kept in the user cache (:mod:`faceanim.io.cache`): the same mesh, landmarks, eyes and style
+    with the same faceanim give them back without the work."""
     from faceanim.io.cache import cached_arrays, content_key
 
+    if style not in STYLES:
+        raise FaceAnimError(f"unknown style '{shown(style)}'; use one of {', '.join(STYLES)}")
     eye_parts = [] if eyes is None else [(side, None if e is None else [np.asarray(e[0]), np.asarray(e[1])])
                                          for side, e in sorted(eyes.items())]
     key = content_key(face.mesh.vertices, face.mesh.faces, face.landmarks,
-                      *[x for side, e in eye_parts for x in ([side] + (e or [None]))])
-    return cached_arrays("arkit_shapes", key, lambda: _arkit_shapes(face, eyes))
+                      *[x for side, e in eye_parts for x in ([side] + (e or [None]))],
+                      *([] if style == "realistic" else [style]))
+    return cached_arrays("arkit_shapes", key, lambda: _arkit_shapes(face, eyes, style))
 
 
-def _arkit_shapes(face: Face, eyes: dict | None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+def _arkit_shapes(face: Face, eyes: dict | None, style: str) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     eyes = face_eyes(face, eyes)
     rig, missing = arkit_rig(face)
     shapes = {n: rig.blendshape(n) for n in rig.controls}
     for name, d in _look_shapes(face, eyes).items():
         shapes[name] = shapes[name] + d
     for slit, name in (("eye_L", "eyeBlinkLeft"), ("eye_R", "eyeBlinkRight")):
-        shapes[name] = closed_blink(face, shapes[name], slit, eyes)
+        shapes[name] = closed_blink(face, shapes[name], slit, eyes, style)
     skipped = {n: "no learned pattern: the generic head has no such shape" for n in missing}
     return shapes, skipped
 
