@@ -80,14 +80,14 @@ def test_the_same_sound_gives_the_same_curves_and_the_mouth_is_kept():
     names = list(APPLE_NAMES)
     mouth = np.zeros((100, len(names)))
     mouth[:, names.index("jawOpen")] = np.linspace(0, 1, 100)
-    a = with_prosody(mouth, names, x, RATE, 50.0)
-    b = with_prosody(mouth, names, x.copy(), RATE, 50.0)
-    assert np.array_equal(a, b)
+    a, head_a = with_prosody(mouth, names, x, RATE, 50.0)
+    b, head_b = with_prosody(mouth, names, x.copy(), RATE, 50.0)
+    assert np.array_equal(a, b) and np.array_equal(head_a, head_b) and head_a.shape == (100, 3)
     assert np.array_equal(a[:, names.index("jawOpen")], mouth[:, names.index("jawOpen")])
 
 
 @settings(max_examples=25, deadline=None)
-@given(st.lists(st.one_of(st.floats(-1e6, 1e6), st.just(float("nan")), st.just(float("inf"))), min_size=0, max_size=4000),
+@given(st.lists(st.one_of(st.floats(-1e6, 1e6), st.just(float("nan")), st.just(float("inf"))), max_size=4000),
        st.sampled_from([8000, 16000, 44100]))
 def test_any_samples_give_curves_in_range(samples, rate):
     """Whatever the samples (empty, NaN, huge, silent), the curves are finite, in 0..1, one row a frame."""
@@ -95,3 +95,23 @@ def test_any_samples_give_curves_in_range(samples, rate):
     names = list(APPLE_NAMES)
     out = prosody_curves(analyse(x, rate), names, 25.0, 7)
     assert out.shape == (7, len(names)) and np.isfinite(out).all() and out.min() >= 0 and out.max() <= 1
+
+
+def test_the_head_nods_after_a_phrases_last_accent_and_leans_phrase_by_phrase():
+    """Two phrases, each with one rise: the head nods down (positive pitch) right after each accent
+    (its deepest point within NOD_DOWN + 50 ms after it) and leans to one side over the first phrase,
+    to the other over the second; it is still (under 1 mrad) before the first word."""
+    from faceanim.drivers.speech.prosody import NOD_DOWN, prosody_head
+
+    x = np.r_[silence(0.4), voice(rise(0.5, 5.0), 1.0), silence(0.6), voice(rise(0.6, 5.0), 1.0), silence(0.4)]
+    p = analyse(x, RATE)
+    assert len(p.accents) == 2
+    fps = 100.0
+    head = prosody_head(p, fps, int(x.size / RATE * fps))
+    for (at, _), (a, b) in zip(p.accents, [(0.4, 1.4), (2.0, 3.0)]):
+        window = slice(int(at * fps), int((at + 0.6) * fps))
+        deepest = (int(at * fps) + int(np.argmax(head[window, 1]))) / fps
+        assert 0 < deepest - at <= NOD_DOWN + 0.05 and head[window, 1].max() > 0.02
+    first, second = head[int(0.9 * fps), 2], head[int(2.5 * fps), 2]
+    assert first * second < 0 and min(abs(first), abs(second)) > 0.02
+    assert np.abs(head[: int(0.1 * fps)]).max() < 1e-3  # the pitch's smoothing reaches a little before

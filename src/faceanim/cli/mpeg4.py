@@ -84,7 +84,7 @@ def _say_animation(args, face, phones, wav):
     from faceanim.standards.arkit import APPLE_NAMES
 
     names = list(APPLE_NAMES)  # Live Link Face's order
-    curves = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps)
+    curves, head = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps)
     if args.expression:
         curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),
                          0.0, 1.0)
@@ -102,8 +102,8 @@ def _say_animation(args, face, phones, wav):
         return speech_stream(0.0, phones, args.fps, extra, name=Path(args.output).stem)
 
     out = Path(args.output)
-    return Animation(args.fps, arkit=curves, face=face, fap=fap_stream, cues=phone_cues(phones), sound=wav,
-                     sound_name=str(Path(args.audio).resolve()) if args.audio else "", name=out.stem,
+    return Animation(args.fps, arkit=curves, head=head, face=face, fap=fap_stream, cues=phone_cues(phones),
+                     sound=wav, sound_name=str(Path(args.audio).resolve()) if args.audio else "", name=out.stem,
                      quantize=args.compact, size=args.size, view=face.view() if face is not None else None)
 
 
@@ -120,7 +120,7 @@ def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
     from faceanim.standards.arkit import APPLE_NAMES
 
     names = list(APPLE_NAMES)
-    curves = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps)
+    curves, _ = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps)
     if args.expression:
         curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),
                          0.0, 1.0)

@@ -17,7 +17,9 @@ pauses and phrase ends). :func:`analyse` reads that from the sound alone, whatev
 ``browOuterUpLeft/Right`` rise before each accent and fall after it, higher for a bigger rise
 (:data:`BROW_PER_ST` per semitone up to :data:`BROW_MAX`); both ``eyeBlink`` close once at the
 start of each pause of :data:`BLINK_PAUSE` or more, and once in any run of speech longer than
-:data:`BLINK_MAX_GAP` without one (at its quietest moment). The same sound gives the same curves.
+:data:`BLINK_MAX_GAP` without one (at its quietest moment). :func:`prosody_head` moves the head
+with the phrases: a rise with the voice's pitch, a nod at each phrase's last accent, a lean over
+each phrase. The same sound gives the same curves.
 """
 
 from __future__ import annotations
@@ -170,8 +172,43 @@ def prosody_curves(prosody: Prosody, names: list[str], fps: float, n_frames: int
     return np.clip(out, 0.0, 1.0)
 
 
-def with_prosody(curves: np.ndarray, names: list[str], samples: np.ndarray, rate: int, fps: float) -> np.ndarray:
+HEAD_PER_ST = 0.006  # radians the head rises per semitone of the voice over its median (Yehia et al. 2002)
+HEAD_SMOOTH = 0.15  # seconds: the smoothing (Gaussian sigma) of that rise
+NOD, NOD_DOWN, NOD_UP = 0.05, 0.15, 0.35  # a nod at a phrase's last accent: radians down, seconds down and back
+TILT = 0.03  # radians the head leans over a phrase, to alternate sides phrase by phrase
+
+
+def prosody_head(prosody: Prosody, fps: float, n_frames: int) -> np.ndarray:
+    """(n_frames, 3) the head's yaw, pitch, roll in radians (faceanim's signs: pitch nods down,
+    roll tilts to the head's right) that ``prosody`` shows, sampled at ``fps`` from 0 s: the head
+    rises a little with the voice's pitch over its median (:data:`HEAD_PER_ST`), nods down
+    :data:`NOD` at each phrase's last accent (or its end, if it has none), and leans :data:`TILT`
+    to one side over each phrase, the other over the next; still where nobody speaks."""
+    from scipy.ndimage import gaussian_filter1d
+
+    t = np.arange(int(n_frames)) / float(fps)
+    out = np.zeros((len(t), 3))
+    voiced = np.isfinite(prosody.pitch)
+    if voiced.sum() >= 5:
+        st = 12.0 * np.log2(prosody.pitch / np.nanmedian(prosody.pitch))
+        st = np.where(voiced & prosody.speaking, st, 0.0)
+        rise = gaussian_filter1d(st, HEAD_SMOOTH / STEP, mode="constant")
+        out[:, 1] -= HEAD_PER_ST * np.interp(t, prosody.times, rise, left=0.0, right=0.0)
+    for k, (a, b) in enumerate(_runs(prosody.speaking)):
+        start, end = a * STEP, b * STEP
+        last = [at for at, _ in prosody.accents if start <= at <= end]
+        out[:, 1] += NOD * _bump(t, (last[-1] if last else end) + NOD_DOWN, NOD_DOWN, NOD_UP)
+        span = max(end - start, 2 * STEP)
+        lean = np.clip((t - start) / span, 0.0, 1.0)
+        out[:, 2] += (TILT if k % 2 == 0 else -TILT) * np.sin(np.pi * lean) ** 2
+    return out
+
+
+def with_prosody(curves: np.ndarray, names: list[str], samples: np.ndarray, rate: int, fps: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """The speech's ARKit ``curves`` (F, len(names)) with the brows and blinks of its sound's prosody
-    laid over them (the larger of the two in each of those columns)."""
-    upper = prosody_curves(analyse(samples, rate), names, fps, len(curves))
-    return np.maximum(np.asarray(curves, dtype=np.float64), upper)
+    laid over them (the larger of the two in each of those columns), and the head's (F, 3) yaw,
+    pitch, roll (:func:`prosody_head`)."""
+    prosody = analyse(samples, rate)
+    upper = prosody_curves(prosody, names, fps, len(curves))
+    return np.maximum(np.asarray(curves, dtype=np.float64), upper), prosody_head(prosody, fps, len(curves))
