@@ -29,7 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 
 STEP = 0.01  # seconds between pitch and level samples
-PITCH_FLOOR, PITCH_CEILING = 75.0, 500.0  # Hz: Praat's range for speech
+PITCH_FLOOR, PITCH_CEILING = 75.0, 500.0  # Hz: Praat's range for speech, the first pass
+RANGE_FLOOR, RANGE_CEILING = 0.75, 1.5  # the second pass's range: these times the first's quartiles
 WINDOW = 0.025  # seconds of sound in each level sample
 SILENCE_DB = 30.0  # a sample this far under the loud speech (its 95th percentile) is silence,
 SILENCE_SHARE = 0.35  # or this share of the way from the noise floor (2nd percentile) up to it
@@ -95,9 +96,15 @@ def analyse(samples: np.ndarray, rate: int) -> Prosody:
     pauses = [(a * STEP, b * STEP) for a, b in _runs(~speaking) if (b - a) * STEP >= PAUSE_MIN or a == 0 or b == n]
     pitch = np.full(n, np.nan)
     if duration > 3 / PITCH_FLOOR and np.any(speaking):
-        track = parselmouth.Sound(x, sampling_frequency=float(rate)).to_pitch(
-            time_step=STEP, pitch_floor=PITCH_FLOOR, pitch_ceiling=PITCH_CEILING)
+        sound = parselmouth.Sound(x, sampling_frequency=float(rate))
+        track = sound.to_pitch(time_step=STEP, pitch_floor=PITCH_FLOOR, pitch_ceiling=PITCH_CEILING)
         f0 = track.selected_array["frequency"]
+        if np.sum(f0 > 0) >= 20:  # a second pass in this speaker's own range: no octave errors
+            q1, q3 = np.percentile(f0[f0 > 0], [25, 75])
+            floor_hz = max(PITCH_FLOOR / 2, RANGE_FLOOR * q1)
+            track = sound.to_pitch(time_step=STEP, pitch_floor=floor_hz,
+                                   pitch_ceiling=max(RANGE_CEILING * q3, 2 * floor_hz))
+            f0 = track.selected_array["frequency"]
         pitch = np.interp(times, track.xs(), np.where(f0 > 0, f0, np.nan), left=np.nan, right=np.nan)
         # interp across NaN gives NaN near them: unvoiced stays unvoiced
         voiced_at = np.interp(times, track.xs(), (f0 > 0).astype(float), left=0.0, right=0.0) > 0.5
