@@ -44,11 +44,42 @@ def test_groups_blinks_and_expressions(tmp_path):
     ({"events": [{"faps": {"open_mouth": 10}}]}, "unknown FAP"),
     ({"events": [{"expression": "joy", "envelope": "square"}]}, "envelope"),
     ({"events": [{"expression": "joy", "at": "soon"}]}, "'at' must be a number"),
+    ({"events": [{"say": "hi", "emotion": "glee"}]}, r"events\[0\]\.emotion: unknown emotion 'glee'"),
+    ({"events": [{"say": "hi", "prosody": "yes"}]}, "prosody"),
 ])
 def test_bad_scripts(tmp_path, data, message):
     path = _script(tmp_path, data, "s.yaml")
     with pytest.raises(InputFileError, match=message):
         build_scene(load_script(path), 0.0, tmp_path)
+
+
+@pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="espeak-ng is not installed (scripts/setup.sh installs it)")
+def test_speech_carries_its_voices_prosody_and_emotion_phrase_by_phrase(tmp_path):
+    """A say event moves the brows, lids and head from its own voice (the same actions as
+    prosody_actions of its sound, placed at its 'at'), none with prosody: false; its emotion is
+    one expression action per phrase of the voice, each at emotion_intensity times the phrase's
+    factor (the mean factor 1 over the phrases, each within EMOTION_RANGE)."""
+    from faceanim.drivers.speech.prosody import EMOTION_RANGE, analyse, phrases, prosody_actions
+    from faceanim.io.audio import read_audio
+
+    words = "I went home. Then, after a long while, I came back again!"
+    data = {"fps": 50, "events": [{"say": words, "at": 1.0, "emotion": "joy", "emotion_intensity": 0.8}]}
+    scene = build_scene(load_script(_script(tmp_path, data)), 0.0, tmp_path)
+    [(at, wav)] = scene.speech
+    prosody = analyse(*read_audio(wav))
+    expected = prosody_actions(prosody, 1.0)
+    voice = [a for a in scene.actions if a.name in ("brow raise", "blink", "nod", "lean")]
+    assert [(a.name, round(a.start, 6)) for a in voice] == [(a.name, round(a.start, 6)) for a in expected]
+    assert any(a.name == "nod" for a in voice) and any(a.name == "lean" for a in voice)
+    joy = [a for a in scene.actions if a.name == "joy"]
+    assert len(joy) == len(phrases(prosody)) >= 2
+    levels = np.array([a.intensity for a in joy])
+    assert np.mean(levels / 0.8) == pytest.approx(1.0, abs=0.05)
+    assert np.all(levels >= 0.8 * EMOTION_RANGE[0] - 1e-9) and np.all(levels <= 0.8 * EMOTION_RANGE[1] + 1e-9)
+    assert joy[0].start >= 1.0 and all(b.start < a.end for a, b in zip(joy, joy[1:]))  # no gap between phrases
+    still = build_scene(load_script(_script(tmp_path, {"events": [{"say": words, "prosody": False}]}, "b.json")),
+                        0.0, tmp_path)
+    assert not [a for a in still.actions if a.name in ("brow raise", "blink", "nod", "lean")]
 
 
 @pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="espeak-ng is not installed (scripts/setup.sh installs it)")

@@ -204,7 +204,7 @@ def test_say_writes_rhubarb_cues_with_the_sound_beside(tmp_path, capsys):
     rows = read_rhubarb_tsv(tsv.read_text())
     assert rows[-1][1] == "X" and {s for _, s in rows} <= set("BCDEFHX")  # hello: no closure, no f/v
     assert main(["say", "hello", "--expression", "joy", "-o", str(tmp_path / "x.tsv")]) == 2
-    assert "leave out --expression" in capsys.readouterr().err and not (tmp_path / "x.tsv").exists()
+    assert "leave out --emotion" in capsys.readouterr().err and not (tmp_path / "x.tsv").exists()
 
 
 def test_perform_writes_rhubarb_cues_of_the_performers_mouth(tmp_path):

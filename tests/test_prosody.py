@@ -80,8 +80,8 @@ def test_the_same_sound_gives_the_same_curves_and_the_mouth_is_kept():
     names = list(APPLE_NAMES)
     mouth = np.zeros((100, len(names)))
     mouth[:, names.index("jawOpen")] = np.linspace(0, 1, 100)
-    a, head_a = with_prosody(mouth, names, x, RATE, 50.0)
-    b, head_b = with_prosody(mouth, names, x.copy(), RATE, 50.0)
+    a, head_a, _ = with_prosody(mouth, names, x, RATE, 50.0)
+    b, head_b, _ = with_prosody(mouth, names, x.copy(), RATE, 50.0)
     assert np.array_equal(a, b) and np.array_equal(head_a, head_b) and head_a.shape == (100, 3)
     assert np.array_equal(a[:, names.index("jawOpen")], mouth[:, names.index("jawOpen")])
 
@@ -115,3 +115,81 @@ def test_the_head_nods_after_a_phrases_last_accent_and_leans_phrase_by_phrase():
     first, second = head[int(0.9 * fps), 2], head[int(2.5 * fps), 2]
     assert first * second < 0 and min(abs(first), abs(second)) > 0.02
     assert np.abs(head[: int(0.1 * fps)]).max() < 1e-3  # the pitch's smoothing reaches a little before
+
+
+def two_phrases(loud: float, quiet: float) -> np.ndarray:
+    """A lively phrase (``loud`` amplitude, pitch swinging 8 semitones) and a flat one (``quiet``)."""
+    lively = voice(lambda t: 120.0 * 2 ** (8 / 12 * (0.5 + 0.5 * np.sin(2 * np.pi * 2 * t))), 1.2)
+    flat = voice(lambda t: np.full_like(t, 120.0), 1.2)
+    return np.r_[silence(0.3), loud * lively, silence(0.6), quiet * flat, silence(0.3)]
+
+
+def test_an_emotion_is_stronger_in_the_livelier_louder_phrase():
+    """--emotion phrase by phrase: the lively loud phrase's intensity is over the one asked for and
+    the flat quiet one's under it (by EMOTION_SPREAD, within EMOTION_RANGE); it is 0 at the clip's
+    ends; swapping the phrases swaps the order; the ARKit curves carry exactly that envelope."""
+    from faceanim.drivers.speech.lipsync import expression_mix
+    from faceanim.drivers.speech.prosody import EMOTION_RANGE, emotion_intensity, phrase_arousal
+
+    fps = 50.0
+    x = two_phrases(1.0, 0.3)
+    p = analyse(x, RATE)
+    assert len(phrase_arousal(p)) == 2
+    n = int(x.size / RATE * fps)
+    level = emotion_intensity(p, 0.6, fps, n)
+    first, second = level[int(0.9 * fps)], level[int(2.7 * fps)]
+    assert 0.6 < first <= 0.6 * EMOTION_RANGE[1] + 1e-9 and 0.6 * EMOTION_RANGE[0] - 1e-9 <= second < 0.6
+    assert level[0] == 0.0 and level[-1] == pytest.approx(0.0, abs=1e-9)
+    swapped = analyse(np.r_[silence(0.3), 0.3 * voice(lambda t: np.full_like(t, 120.0), 1.2), silence(0.6),
+                            x[int(0.3 * RATE):int(1.5 * RATE)], silence(0.3)], RATE)
+    other = emotion_intensity(swapped, 0.6, fps, n)
+    assert other[int(0.9 * fps)] < 0.6 < other[int(2.7 * fps)]
+    from faceanim.drivers.speech.prosody import emotion_actions
+
+    lively, flat = emotion_actions(p, "joy", 0.6, x.size / RATE - 0.3)  # the director's and .fap's, per phrase
+    assert lively.intensity == pytest.approx(first, rel=1e-6) and flat.intensity == pytest.approx(second, rel=1e-6)
+    assert lively.start == 0.0 and flat.start < lively.end
+    names = list(APPLE_NAMES)
+    curves, _, _ = with_prosody(np.zeros((n, len(names))), names, x, RATE, fps, "joy", 0.6)
+    smile = names.index("mouthSmileLeft")
+    assert curves[:, smile] == pytest.approx(np.clip(expression_mix("joy")["mouthSmileLeft"] * level, 0, 1))
+
+
+def test_the_fap_actions_move_the_face_when_the_curves_do():
+    """prosody_actions (the director's and .fap's) against prosody_curves/prosody_head of the same
+    sound: the eyebrow raise peaks at the accent, the eyelids shut at the blink, head_pitch nods
+    down at the phrase's last accent, head_roll leans one way then the other."""
+    from faceanim.drivers.mpeg4 import blend_actions
+    from faceanim.drivers.speech.prosody import prosody_actions, prosody_head
+    from faceanim.standards.mpeg4 import fap
+
+    x = np.r_[silence(0.4), voice(rise(0.5, 5.0), 1.0), silence(0.6), voice(rise(0.6, 5.0), 1.0), silence(0.4)]
+    p = analyse(x, RATE)
+    fps = 100.0
+    n = int(x.size / RATE * fps)
+    stream = blend_actions(prosody_actions(p, 0.0), n, fps)
+    names = list(APPLE_NAMES)
+    curves, head = prosody_curves(p, names, fps, n), prosody_head(p, fps, n)
+
+    def col(name):
+        return stream.values[:, fap(name).number - 1]
+
+    brow = col("raise_l_i_eyebrow")
+    for at, _ in p.accents:
+        w = slice(int((at - 0.3) * fps), int((at + 0.3) * fps))
+        assert abs(np.argmax(brow[w]) - np.argmax(curves[w, names.index("browInnerUp")])) <= 2 and brow[w].max() > 100
+    lid, shut = col("close_t_l_eyelid"), curves[:, names.index("eyeBlinkLeft")]
+    from faceanim.drivers.speech.prosody import blink_times
+
+    assert blink_times(p)
+    for at in blink_times(p):
+        w = slice(int(at * fps), int((at + 0.3) * fps))
+        assert abs(np.argmax(lid[w]) - np.argmax(shut[w])) <= 1 and lid[w].max() > 1000
+    assert lid[int(0.6 * fps):int(1.3 * fps)].max() == 0.0  # not inside the first phrase
+    nod = col("head_pitch") * 1e-5
+    for at, _ in p.accents:
+        w = slice(int(at * fps), int((at + 0.6) * fps))
+        assert abs(np.argmax(nod[w]) - np.argmax(head[w, 1])) <= 3 and nod[w].max() > 0.04
+    roll = col("head_roll")
+    assert roll[int(0.9 * fps)] * roll[int(2.5 * fps)] < 0
+    assert np.sign(roll[int(0.9 * fps)]) == np.sign(head[int(0.9 * fps), 2])

@@ -113,7 +113,23 @@ def test_say_writes_a_fap_file_and_glb(tmp_path, capsys):
     assert main(["say", "Hello, how are you?", "-o", str(out)]) == 0
     s = read_fap(out)
     assert s.n_frames > 20 and s.column("open_jaw").max() > 100
+    # the voice's prosody is in the .fap too: a blink at the pause, nods and a lean per phrase
+    assert main(["say", "Hello there. How are you today?", "-o", str(out)]) == 0
+    s = read_fap(out)
+    assert s.column("close_t_l_eyelid").max() > 900 and s.column("head_pitch").max() > 4000
+    assert s.column("head_roll").max() > 2000 and s.column("head_roll").min() < -2000
     assert main(["say", "Hello", "--expression", "joy", "-o", str(tmp_path / "h.glb")]) == 0
+    for flag in ("--emotion", "--expression"):  # --expression is --emotion's older name
+        assert main(["say", "Hello", flag, "joy", "-o", str(tmp_path / f"h{flag}.fap")]) == 0
+    joy = read_fap(tmp_path / "h--emotion.fap")
+    assert np.array_equal(joy.values, read_fap(tmp_path / "h--expression.fap").values)
+    from faceanim.drivers.mpeg4 import expression_faps
+
+    assert main(["say", "Hello", "-o", str(tmp_path / "plain.fap")]) == 0
+    plain = read_fap(tmp_path / "plain.fap")
+    # joy's FAPs the visemes leave alone (the cheeks, the lower lids) all move joy's way
+    alone = [(f, v) for f, v in expression_faps("joy").items() if not plain.values[:, f - 1].any()]
+    assert len(alone) >= 4 and all(np.sign(v) * joy.values[:, f - 1].mean() > 0 for f, v in alone)
     assert main(["say", "...", "-o", str(tmp_path / "x.fap")]) == 2
     assert "no words" in capsys.readouterr().err
     assert not (tmp_path / "x.fap").exists()

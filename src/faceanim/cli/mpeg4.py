@@ -71,33 +71,28 @@ def _say_phones(args, voice, tmp: Path) -> tuple[list, Path]:
 def _say_animation(args, face, phones, wav):
     """``say`` as an :class:`~faceanim.export.Animation`: ARKit curves of the lip sync
     (:mod:`faceanim.drivers.speech.lipsync`) with the brows and blinks of the voice's prosody
-    (:mod:`faceanim.drivers.speech.prosody`) and ``--expression`` held, Rhubarb cues of the phones,
-    MPEG-4's visemes as FAPs (Lee et al.; made only for a .fap), the sound (written beside a .glb
+    (:mod:`faceanim.drivers.speech.prosody`) and ``--emotion`` phrase by phrase, Rhubarb cues of the
+    phones, MPEG-4's visemes with the same prosody and emotion as FAPs (Lee et al.; made only for a
+    .fap), the sound (written beside a .glb
     or cue file, or the recording named)."""
-    import numpy as np
-
     from faceanim.drivers.cues import phone_cues
-    from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
+    from faceanim.drivers.speech.lipsync import lipsync_curves
     from faceanim.drivers.speech.prosody import with_prosody
     from faceanim.export import Animation
     from faceanim.io.audio import read_audio
     from faceanim.standards.arkit import APPLE_NAMES
 
     names = list(APPLE_NAMES)  # Live Link Face's order
-    curves, head = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps)
-    if args.expression:
-        curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),
-                         0.0, 1.0)
+    curves, head, prosody = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps,
+                                         args.expression, args.intensity)
 
     def fap_stream():
-        from faceanim.drivers.mpeg4 import Action, expression_faps
+        from faceanim.drivers.speech.prosody import emotion_actions, prosody_actions
         from faceanim.drivers.speech.visemes import speech_stream
 
-        extra = []
+        extra = prosody_actions(prosody)
         if args.expression:
-            end = max(p.end for p in phones)
-            extra.append(Action(args.expression, expression_faps(args.expression), 0.0, end + 0.2,
-                                args.intensity, "linear", 0.1, 0.1, 0.3))
+            extra += emotion_actions(prosody, args.expression, args.intensity, max(p.end for p in phones))
         # a .fap file is for any face: MPEG-4's neutral face has closed lips, so no gap to close
         return speech_stream(0.0, phones, args.fps, extra, name=Path(args.output).stem)
 
@@ -110,9 +105,7 @@ def _say_animation(args, face, phones, wav):
 def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
     """``say`` onto the --face avatar's own ARKit-named targets: the same avatar with the speech as one
     more animation, the sound beside it (named in the scene's extras)."""
-    import numpy as np
-
-    from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
+    from faceanim.drivers.speech.lipsync import lipsync_curves
     from faceanim.drivers.speech.prosody import with_prosody
     from faceanim.export import sound_beside
     from faceanim.io.audio import read_audio
@@ -120,10 +113,8 @@ def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
     from faceanim.standards.arkit import APPLE_NAMES
 
     names = list(APPLE_NAMES)
-    curves, _ = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps)
-    if args.expression:
-        curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),
-                         0.0, 1.0)
+    curves, _, _ = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps,
+                                args.expression, args.intensity)
     out = Path(args.output)
     companion = sound_companion(out)
     play_own(args, out, curves, args.fps, out.stem, {"audio": companion.name, "fps": args.fps})
@@ -154,7 +145,7 @@ def _cmd_say(args) -> None:
         read_audio(args.audio, "recorded speech")
     suffix = Path(args.output).suffix.lower()
     if suffix in CUE_SUFFIXES and args.expression:
-        raise CommandError("mouth cues (.tsv, .json) show the mouth's shapes only; leave out --expression")
+        raise CommandError("mouth cues (.tsv, .json) show the mouth's shapes only; leave out --emotion")
     if not WRITERS[suffix].shows_face and (args.face or args.landmarks):
         raise CommandError(f"a {suffix} output holds {WRITERS[suffix].holds.split(' (')[0]}, not a face: drop "
                            "--face/--landmarks, or write .glb or .mp4")
@@ -292,9 +283,11 @@ def register(sub) -> None:
     sy.add_argument("--transcript", metavar="TXT", help="text file with the words spoken in --audio (more exact "
                                                         "timing; without it the phones are recognised from the audio)")
     add_face(sy, positional=False)
-    sy.add_argument("--expression", help="an emotion held while speaking (joy, sadness, surprise, fear, anger, "
-                                         "disgust)")
-    sy.add_argument("--intensity", type=INTENSITY, default=0.6, help="intensity of --expression (0..2)")
+    sy.add_argument("--emotion", "--expression", dest="expression", metavar="EMOTION",
+                    help="an emotion carried while speaking (joy, sadness, surprise, fear, anger, disgust), phrase "
+                         "by phrase: a louder, livelier phrase shows more of it")
+    sy.add_argument("--intensity", type=INTENSITY, default=0.6, help="intensity of --emotion (0..2), the mean over "
+                                                                      "the phrases")
     sy.add_argument("--voice", default="en-us", help="espeak-ng voice (`espeak-ng --voices` lists them)")
     sy.add_argument("--fps", type=FPS, default=DEFAULT_FPS, help="frames per second (up to 240)")
     _video_options(sy, suffixes())

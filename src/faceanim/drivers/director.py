@@ -72,6 +72,7 @@ from faceanim.drivers.mpeg4 import (
     fap_set,
     viseme_table,
 )
+from faceanim.drivers.speech.prosody import BLINK_FAPS
 from faceanim.errors import InputFileError
 from faceanim.errors import shown as _shown
 from faceanim.standards.mpeg4 import FapError
@@ -84,7 +85,7 @@ from faceanim.limits import (
     MAX_TEXT,
 )
 
-BLINK = {"close_t_l_eyelid": 1024, "close_t_r_eyelid": 1024, "close_b_l_eyelid": 150, "close_b_r_eyelid": 150}
+BLINK = BLINK_FAPS  # the eyelids shut (the same closure as the voice's blinks)
 BLINK_DURATION = 0.18
 MIN_BLINK_EVERY = 0.5  # seconds between blinks, at least (people blink every 2-10 s)
 MIN_BLINK_GAP = 0.3  # jitter never brings two blinks closer than this
@@ -119,7 +120,10 @@ class SayEvent(_Strict):
     say: Annotated[str, Field(min_length=1, max_length=MAX_TEXT)]
     at: Seconds = 0.0
     voice: Name = "en-us"
-    intensity: Intensity = 1.0
+    intensity: Intensity = 1.0  # of the mouth's visemes
+    prosody: bool = True  # brows on the voice's accents, blinks at its pauses, nods and leans per phrase
+    emotion: Name | None = None  # an MPEG-4 expression carried by this speech, phrase by phrase
+    emotion_intensity: Intensity = 0.6
 
 
 class _Shaped(_Strict):
@@ -487,6 +491,8 @@ def _event(data, loc: tuple, fail: _Fail) -> Event:
         fail(loc + (kinds[1],), f"{ONE_OF}; this one has both '{kinds[0]}' and '{kinds[1]}': split it in two")
     kind = kinds[0]
     ev = _validate(EVENT_MODELS[kind], data, loc, fail, kind)
+    if kind == "say" and ev.emotion is not None and ev.emotion not in _expressions():
+        fail(loc + ("emotion",), f"unknown emotion '{_shown(ev.emotion)}'; choose one of: {', '.join(_expressions())}")
     if kind == "expression" and ev.expression not in _expressions():
         fail(loc + ("expression",), f"unknown expression '{_shown(ev.expression)}'; choose one of: "
                                     f"{', '.join(_expressions())}")
@@ -636,6 +642,19 @@ class Scene:
         return int(np.ceil(self.duration * self.fps)) + 1
 
 
+def _voice_actions(ev: SayEvent, wav: Path, at: float, phones) -> list[Action]:
+    """A say event's upper face and head from its voice's prosody (``prosody``), and its ``emotion``
+    phrase by phrase (:func:`~faceanim.drivers.speech.prosody.emotion_actions`)."""
+    from faceanim.drivers.speech.prosody import analyse, emotion_actions, prosody_actions
+    from faceanim.io.audio import read_audio
+
+    prosody = analyse(*read_audio(wav, "speech audio"))
+    out = prosody_actions(prosody, at) if ev.prosody else []
+    if ev.emotion:
+        out += emotion_actions(prosody, ev.emotion, ev.emotion_intensity, max(p.end for p in phones) - at, at)
+    return out
+
+
 def build_scene(script: Script | dict, lip_gap: float, workdir: Path) -> Scene:
     """Turn a script (a :class:`Script`, or a dict validated here) into actions, and speech audio
     files in ``workdir``. The same script gives the same scene, run after run."""
@@ -674,6 +693,8 @@ def build_scene(script: Script | dict, lip_gap: float, workdir: Path) -> Scene:
                 all_phones.extend(phones)
                 actions.extend(viseme_actions(phones, lip_gap, ev.intensity))
                 speech.append((at, wav))
+                if ev.prosody or ev.emotion:
+                    actions.extend(_voice_actions(ev, wav, at, phones))
             else:
                 if isinstance(ev, ExpressionEvent):
                     name, faps, weight = ev.expression, expression_faps(ev.expression), 0.3

@@ -136,15 +136,21 @@ def expression_mix(name: str) -> dict[str, float]:
     return dict(table[name])
 
 
-def expression_curves(name: str, names: list[str], n_frames: int, fps: float, intensity: float = 1.0,
+def expression_curves(name: str, names: list[str], n_frames: int, fps: float, intensity=1.0,
                       ramp: float = 0.1) -> np.ndarray:
-    """(F, len(names)) an expression held over the whole clip at ``intensity``, rising and falling
-    over ``ramp`` seconds at its ends."""
+    """(F, len(names)) an expression over the whole clip: held at ``intensity``, rising and falling
+    over ``ramp`` seconds at its ends; or, with ``intensity`` an (F,) array, at that intensity
+    frame by frame (e.g. :func:`~faceanim.drivers.speech.prosody.emotion_intensity`, phrase by phrase)."""
     t = np.arange(n_frames) / fps
-    duration = max(t[-1], 1e-9) if n_frames else 1e-9
-    envelope = np.clip(np.minimum(t, duration - t) / max(ramp, 1e-9), 0.0, 1.0)
+    if np.ndim(intensity):
+        envelope = np.asarray(intensity, dtype=np.float64)
+        if envelope.shape != (n_frames,):
+            raise ValueError(f"an expression's intensity per frame needs {n_frames} values, got {envelope.shape}")
+    else:
+        duration = max(t[-1], 1e-9) if n_frames else 1e-9
+        envelope = float(intensity) * np.clip(np.minimum(t, duration - t) / max(ramp, 1e-9), 0.0, 1.0)
     mix = expression_mix(name)
     out = np.zeros((n_frames, len(names)))
     for k, shape in enumerate(names):
-        out[:, k] = float(intensity) * mix.get(shape, 0.0) * envelope
+        out[:, k] = mix.get(shape, 0.0) * envelope
     return out

@@ -211,11 +211,124 @@ def prosody_head(prosody: Prosody, fps: float, n_frames: int) -> np.ndarray:
     return out
 
 
-def with_prosody(curves: np.ndarray, names: list[str], samples: np.ndarray, rate: int, fps: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def phrases(prosody: Prosody) -> list[tuple[float, float]]:
+    """(start, end) seconds of each phrase: the speech between two pauses."""
+    return [(a * STEP, b * STEP) for a, b in _runs(prosody.speaking)]
+
+
+EMOTION_SPREAD = 0.35  # an emotion's intensity per phrase: 1 + this x the phrase's arousal (z-score),
+EMOTION_RANGE = (0.5, 1.5)  # within these times the intensity asked for
+EMOTION_RAMP = 0.3  # seconds the intensity takes to change between phrases (and to rise at the start)
+
+
+def phrase_arousal(prosody: Prosody) -> list[float]:
+    """Each phrase's arousal as a z-score over the sound's phrases: its mean level (dB) plus its
+    pitch range (semitones, 10th to 90th percentile), each standardised; 0 for a lone phrase."""
+    rows = []
+    for start, end in phrases(prosody):
+        inside = (prosody.times >= start) & (prosody.times < end)
+        level = float(np.mean(prosody.level[inside])) if inside.any() else 0.0
+        voiced = prosody.pitch[inside & np.isfinite(prosody.pitch)]
+        spread = float(np.diff(12.0 * np.log2(np.percentile(voiced, [10, 90]))).item()) if len(voiced) >= 5 else 0.0
+        rows.append((level, spread))
+    if len(rows) < 2:
+        return [0.0] * len(rows)
+    r = np.array(rows)
+    sd = r.std(axis=0)
+    z = np.where(sd > 1e-9, (r - r.mean(axis=0)) / np.where(sd > 1e-9, sd, 1.0), 0.0)
+    return (z.mean(axis=1)).tolist()
+
+
+def emotion_intensity(prosody: Prosody, intensity: float, fps: float, n_frames: int) -> np.ndarray:
+    """(n_frames,) an emotion's intensity over the speech, phrase by phrase: ``intensity`` times
+    1 + :data:`EMOTION_SPREAD` x the phrase's :func:`phrase_arousal` (within :data:`EMOTION_RANGE`),
+    a louder, livelier phrase showing more of it; held through the pause after a phrase, changing
+    over :data:`EMOTION_RAMP` seconds, rising from 0 at the start and falling to 0 at the end."""
+    t = np.arange(int(n_frames)) / float(fps)
+    spans, arousal = phrases(prosody), phrase_arousal(prosody)
+    level = np.full(len(t), float(intensity))
+    lo, hi = EMOTION_RANGE
+    for (start, _), z in zip(spans, arousal):
+        level[t >= start - EMOTION_RAMP / 2] = intensity * float(np.clip(1.0 + EMOTION_SPREAD * z, lo, hi))
+    k = max(int(round(EMOTION_RAMP * fps)), 1)
+    level = np.convolve(np.r_[np.full(k, level[0]), level, np.full(k, level[-1])], np.ones(k) / k, "same")[k:-k]
+    end = max(t[-1], 1e-9) if len(t) else 1e-9
+    return level * np.clip(np.minimum(t, end - t) / EMOTION_RAMP, 0.0, 1.0)
+
+
+BROW_FAP = 400.0  # ENS of MPEG-4's eyebrow raises for an ARKit brow weight of 1 (surprise: 250)
+BLINK_FAPS = {"close_t_l_eyelid": 1024, "close_t_r_eyelid": 1024, "close_b_l_eyelid": 150, "close_b_r_eyelid": 150}
+ANGLE_UNIT = 1e-5  # radians per MPEG-4 angle unit (AU): head_pitch, head_roll
+
+
+def prosody_actions(prosody: Prosody, offset: float = 0.0) -> list:
+    """The same brows, blinks, nods and leans as :func:`prosody_curves` and :func:`prosody_head`, as
+    MPEG-4 actions (Lee et al.'s director and ``.fap`` files): the eyebrow raises
+    (``raise_*_eyebrow``, :data:`BROW_FAP` per unit of brow), eyelid closures, ``head_pitch`` nods and
+    ``head_roll`` leans, starting ``offset`` seconds into the timeline. The slow rise of the head
+    with the pitch is left out (a stream of actions, not a curve)."""
+    from faceanim.drivers.mpeg4 import Action, fap_set
+
+    brow_faps = ("raise_l_i_eyebrow", "raise_r_i_eyebrow", "raise_l_m_eyebrow", "raise_r_m_eyebrow",
+                 "raise_l_o_eyebrow", "raise_r_o_eyebrow")
+    out = []
+    for at, semitones in prosody.accents:
+        raise_ = min(BROW_MAX, BROW_PER_ST * semitones) * BROW_FAP
+        start = max(at - BROW_LEAD, 0.0)
+        rise = (at - start) / (at + BROW_FALL - start)
+        out.append(Action("brow raise", fap_set({f: raise_ for f in brow_faps}), offset + start, at + BROW_FALL - start,
+                          1.0, "smooth", rise, 1.0 - rise))
+    blink = fap_set(BLINK_FAPS)
+    for at in blink_times(prosody):
+        out.append(Action("blink", blink, offset + at, BLINK_CLOSE + BLINK_OPEN, 1.0, "smooth",
+                          BLINK_CLOSE / (BLINK_CLOSE + BLINK_OPEN), 1.0 - BLINK_CLOSE / (BLINK_CLOSE + BLINK_OPEN),
+                          weight=3.0))
+    for k, (start, end) in enumerate(phrases(prosody)):
+        last = [at for at, _ in prosody.accents if start <= at <= end]
+        at = last[-1] if last else end
+        out.append(Action("nod", fap_set({"head_pitch": NOD / ANGLE_UNIT}), offset + at, NOD_DOWN + NOD_UP, 1.0,
+                          "smooth", NOD_DOWN / (NOD_DOWN + NOD_UP), 1.0 - NOD_DOWN / (NOD_DOWN + NOD_UP)))
+        lean = TILT if k % 2 == 0 else -TILT
+        out.append(Action("lean", fap_set({"head_roll": lean / ANGLE_UNIT}), offset + start,
+                          max(end - start, 2 * STEP), 1.0, "smooth", 0.5, 0.5))
+    return out
+
+
+def emotion_actions(prosody: Prosody, emotion: str, intensity: float, end: float, offset: float = 0.0) -> list:
+    """``emotion`` (an MPEG-4 expression's name) as one action per phrase of the voice, at
+    ``intensity`` times the phrase's factor (as :func:`emotion_intensity`), each running on to the
+    next phrase's start so the face keeps it through the pauses; the last ends 0.2 s after ``end``
+    (the speech's end, seconds); ``offset`` seconds into the timeline."""
+    from faceanim.drivers.mpeg4 import Action, expression_faps
+
+    faps = expression_faps(emotion)
+    spans = phrases(prosody) or [(0.0, end)]
+    arousal = phrase_arousal(prosody) or [0.0]
+    lo, hi = EMOTION_RANGE
+    out = []
+    for k, ((start, stop), z) in enumerate(zip(spans, arousal)):
+        last = k + 1 == len(spans)
+        begin = max(start - EMOTION_RAMP / 2, 0.0) if k else 0.0
+        until = max(end, stop) + 0.2 if last else spans[k + 1][0] + EMOTION_RAMP / 2
+        level = intensity * float(np.clip(1.0 + EMOTION_SPREAD * z, lo, hi))
+        duration = max(until - begin, 0.1)
+        ramp = min(EMOTION_RAMP / duration, 0.5)
+        out.append(Action(emotion, faps, offset + begin, duration, level, "linear", ramp, ramp, 0.3))
+    return out
+
+
+def with_prosody(curves: np.ndarray, names: list[str], samples: np.ndarray, rate: int, fps: float,
+                 emotion: str | None = None, intensity: float = 0.6) -> tuple[np.ndarray, np.ndarray, Prosody]:
     """The speech's ARKit ``curves`` (F, len(names)) with the brows and blinks of its sound's prosody
-    laid over them (the larger of the two in each of those columns), and the head's (F, 3) yaw,
-    pitch, roll (:func:`prosody_head`)."""
+    laid over them (the larger of the two in each of those columns) and ``emotion`` (an
+    expression's name) added at ``intensity`` phrase by phrase (:func:`emotion_intensity`); the
+    head's (F, 3) yaw, pitch, roll (:func:`prosody_head`); and the prosody itself."""
+    from faceanim.drivers.speech.lipsync import expression_curves
+
     prosody = analyse(samples, rate)
-    upper = prosody_curves(prosody, names, fps, len(curves))
-    return np.maximum(np.asarray(curves, dtype=np.float64), upper), prosody_head(prosody, fps, len(curves))
+    n = len(curves)
+    out = np.maximum(np.asarray(curves, dtype=np.float64), prosody_curves(prosody, names, fps, n))
+    if emotion:
+        out = np.clip(out + expression_curves(emotion, names, n, fps, emotion_intensity(prosody, intensity, fps, n)),
+                      0.0, 1.0)
+    return out, prosody_head(prosody, fps, n), prosody
