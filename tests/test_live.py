@@ -584,19 +584,14 @@ def test_live_lip_sync_is_deterministic_and_restarts_at_pauses():
     assert jaw[len(a) // 320 + 10:].max() > 0.2
 
 
-def test_idle_face_blinks_and_sways():
-    from faceanim.live.audio import BLINK_EVERY, HEAD_SWAY, IdleFace
+def test_idle_face_sways():
+    from faceanim.live.audio import HEAD_SWAY, IdleFace
 
-    idle = IdleFace()
     t = np.arange(0, 60, 1 / 30)
-    blink, head = zip(*(idle.at(x) for x in t))
-    blink, head = np.array(blink), np.array(head)
-    starts = t[1:][(blink[1:] > 0) & (blink[:-1] == 0)]
-    gaps = np.diff(starts)
-    assert blink.max() == 1.0 and len(starts) >= 60 / BLINK_EVERY[1]
-    assert gaps.min() >= BLINK_EVERY[0] - 0.05 and gaps.max() <= BLINK_EVERY[1] + 0.05
+    head = np.array([IdleFace().at(x) for x in t])
     assert np.all(np.abs(np.degrees(head)) <= np.array([a for _, a in HEAD_SWAY]) + 1e-9)
-    assert np.array_equal(blink, np.array([IdleFace().at(x)[0] for x in t]))  # the same every run
+    assert np.all(np.degrees(np.ptp(head, axis=0)) > np.array([a for _, a in HEAD_SWAY]))  # it moves
+    assert np.array_equal(head, np.array([IdleFace().at(x) for x in t]))  # the same every run
 
 
 def test_merge_mouth():
@@ -624,7 +619,10 @@ def test_live_command_with_sound_alone(tmp_path):
     assert 6.5 * 30 <= take.n_samples <= 7.5 * 30  # the clip's 7 s at 30 ticks a second
     jaw = take.weights[:, ARKIT_NAMES.index("JawOpen")]
     assert jaw.max() > 0.3 and (jaw > 0.05).mean() > 0.3  # it talks
-    assert take.weights[:, ARKIT_NAMES.index("EyeBlinkLeft")].max() == pytest.approx(1.0)  # and blinks
+    # and the voice moves the rest of the face: a blink, the brows on its accents, a nod
+    assert take.weights[:, ARKIT_NAMES.index("EyeBlinkLeft")].max() > 0.9
+    assert take.weights[:, ARKIT_NAMES.index("BrowInnerUp")].max() > 0.1
+    assert np.ptp(take.head[:, 1]) > 0.04
     silent = tmp_path / "silent.wav"
     import soundfile
 

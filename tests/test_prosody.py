@@ -193,3 +193,69 @@ def test_the_fap_actions_move_the_face_when_the_curves_do():
     roll = col("head_roll")
     assert roll[int(0.9 * fps)] * roll[int(2.5 * fps)] < 0
     assert np.sign(roll[int(0.9 * fps)]) == np.sign(head[int(0.9 * fps), 2])
+
+
+def _live(x: np.ndarray, chunk: int = 320) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """LiveProsody fed ``x`` in chunks: (times, brow and blink, head) after each chunk."""
+    from faceanim.drivers.speech.prosody import LiveProsody
+
+    live, names = LiveProsody(RATE), list(APPLE_NAMES)
+    cols = [names.index("browInnerUp"), names.index("eyeBlinkLeft")]
+    rows = []
+    for k in range(0, len(x), chunk):
+        live.feed(x[k:k + chunk])
+        rows.append((live.time, live.curves(names)[cols], live.head()))
+    t, face, head = zip(*rows)
+    return np.array(t), np.array(face), np.array(head)
+
+
+def test_live_prosody_follows_the_voice_as_it_comes():
+    """``live --audio``'s prosody, heard 20 ms at a time: each brow raise peaks within 0.25 s after
+    the offline accent, the eyes blink inside each pause (after BLINK_PAUSE of it) and never in a
+    phrase, the head nods once each phrase is over and leans one way, then the other."""
+    from faceanim.drivers.speech.prosody import BLINK_PAUSE
+
+    x = np.r_[silence(0.4), voice(rise(0.5, 5.0), 1.0), silence(0.6), voice(rise(0.6, 5.0), 1.0), silence(0.5)]
+    offline = analyse(x, RATE)
+    t, face, head = _live(x)
+    for (at, _), (a, b) in zip(offline.accents, [(0.4, 1.45), (2.0, 3.05)]):
+        inside = (t > a) & (t < b)
+        peak = t[inside][np.argmax(face[inside, 0])]
+        assert 0.0 <= peak - at <= 0.25 and face[inside, 0].max() > 0.3
+    shut = t[face[:, 1] > 0.5]
+    for a, b in [(0.0, 0.4), (1.4, 2.0), (3.0, 3.5)]:  # the pauses
+        assert np.any((shut > a + BLINK_PAUSE - 0.02) & (shut < b + 0.2))
+    assert not np.any(((shut > 0.5) & (shut < 1.4)) | ((shut > 2.1) & (shut < 3.0)))
+    nods = t[1:-1][(head[1:-1, 1] > head[:-2, 1]) & (head[1:-1, 1] >= head[2:, 1]) & (head[1:-1, 1] > 0.03)]
+    assert len(nods) == 2 and 1.4 < nods[0] < 2.0 and 3.0 < nods[1] < 3.5
+    assert head[np.searchsorted(t, 0.9), 2] * head[np.searchsorted(t, 2.5), 2] < 0
+    assert np.abs(head[t < 0.35]).max() == 0.0
+
+
+def test_live_prosody_is_the_same_in_any_chunks_and_stays_small_for_hours():
+    """The same sound in 20 ms or 7 ms chunks gives the same face at the same moments (to the
+    pitch reading's 10 ms); minutes of silence keep blinking every BLINK_MAX_GAP and keep no
+    more than LIVE_KEEP seconds of events."""
+    from faceanim.drivers.speech.prosody import LIVE_KEEP, LiveProsody
+
+    x = np.r_[silence(0.3), voice(rise(0.6, 4.0), 1.2), silence(0.5)]
+    t1, f1, h1 = _live(x, 320)
+    again = _live(x, 320)
+    assert np.array_equal(f1, again[1]) and np.array_equal(h1, again[2])
+    t2, f2, _ = _live(x, 112)
+    for k in np.flatnonzero(np.isin(np.round(t2, 4), np.round(t1, 4)))[:: 5]:
+        j = int(np.flatnonzero(np.round(t1, 4) == np.round(t2[k], 4))[0])
+        assert np.abs(f2[k] - f1[j]).max() < 0.15
+    live = LiveProsody(RATE)
+    quiet = 1e-4 * np.random.default_rng(0).standard_normal(RATE)
+    for _ in range(180):  # three minutes of a quiet room
+        live.feed(quiet)
+    assert len(live.blinks) <= LIVE_KEEP / BLINK_MAX_GAP + 1 and live.blinks
+    assert live.phrase_index == -1 and not live.nods and not live.leans  # a room's hiss is not speech
+    hiss = 0.05 * np.random.default_rng(1).standard_normal(RATE)
+    for _ in range(30):  # loud steady noise (a fan by the microphone): heard as one phrase when it
+        live.feed(hiss)  # starts, no longer once the last LIVE_HISTORY seconds are all of it
+    assert live.phrase_index <= 0 and not live.speaking
+    assert live.time - live.last_blink <= BLINK_MAX_GAP
+    live.feed(np.full(320, np.nan))  # a broken chunk is silence
+    assert np.isfinite(live.head()).all() and np.isfinite(live.curves(list(APPLE_NAMES))).all()

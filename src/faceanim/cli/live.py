@@ -120,7 +120,9 @@ def register(sub) -> None:
     p.add_argument("--camera", type=_arg_type("--camera", 0, 63, integer=True), metavar="N", help="camera N")
     p.add_argument("--audio", metavar="FILE", help="a sound (WAV, FLAC, OGG, ...) played in real time: live lip sync "
                                                    "(phones recognised as they come); alone it drives the whole face "
-                                                   "(with blinks and a little head motion), with a video its mouth")
+                                                   "(the brows on the voice's accents, blinks at its pauses, the "
+                                                   "head nodding and leaning phrase by phrase), with a video its "
+                                                   "mouth")
     p.add_argument("--mouth", choices=("audio", "video", "both"),
                    help="with --audio and a video or camera: whose mouth the avatar has (default: both, averaged; "
                         "the lips shut when either shuts them)")

@@ -9,6 +9,9 @@ A script (YAML or JSON) lists events; each event has exactly one of ``say``, ``e
       - say: "Hello, how are you?"   # speech (synthesized), with its audio
         at: 0.5
         voice: en-us                 # any voice `espeak-ng --voices` lists (default en-us)
+        emotion: joy                 # carried phrase by phrase, livelier phrases more (optional)
+        emotion_intensity: 0.6
+        prosody: true                # brows, blinks, nods and leans from the voice (the default)
       - expression: joy              # an MPEG-4 expression: joy sadness anger fear disgust surprise
         at: 0.0
         duration: 3.0

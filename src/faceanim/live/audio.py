@@ -4,8 +4,11 @@
   time in its own thread, 20 ms at a time, into a
   :class:`~faceanim.drivers.speech.stream.LiveLipSync`: the phones heard so far, the mouth now.
 - :class:`AudioSource` is a source of ticks (30 a second) for a run with no video: each tick
-  carries the mouth's ARKit curves at that moment; :class:`IdleFace` adds blinks and a little head
-  motion so the avatar does not stare (deterministic: the same sound gives the same curves).
+  carries the face's ARKit curves at that moment, the mouth from the lip sync and the brows and
+  blinks from the voice's prosody (:class:`~faceanim.drivers.speech.prosody.LiveProsody`: brows
+  on pitch accents, blinks at pauses), with the head's nods and leans per phrase; :class:`IdleFace`
+  adds a slow head sway so the avatar is never still (deterministic: the same sound gives the
+  same curves).
 - :func:`merge_mouth` puts the sound's mouth into a video frame's curves (``--mouth``).
 """
 
@@ -17,6 +20,7 @@ import time
 import numpy as np
 
 from faceanim.drivers.speech.phonemes import SAMPLE_RATE
+from faceanim.drivers.speech.prosody import BLINKS, BROWS, LiveProsody
 from faceanim.drivers.speech.stream import LiveLipSync
 from faceanim.errors import FaceAnimError
 from faceanim.standards.arkit import APPLE_NAMES, ARKIT_NAMES
@@ -24,12 +28,11 @@ from faceanim.live.performer import LiveSample
 from faceanim.live.sources import Frame, Source
 
 APPLE = list(APPLE_NAMES)
-MOUTH = np.array([n.startswith(("Jaw", "Mouth")) for n in ARKIT_NAMES])  # the curves the sound drives
+MOUTH = np.array([n.startswith(("Jaw", "Mouth")) for n in ARKIT_NAMES])  # the curves the lip sync drives
+UPPER = np.array([n in BROWS + BLINKS for n in APPLE_NAMES])  # and those the voice's prosody drives
 CLOSE = ARKIT_NAMES.index("MouthClose")
 CHUNK = SAMPLE_RATE // 50  # 20 ms of audio per step
 TICK_FPS = 30.0
-BLINK_EVERY = (2.0, 6.0)  # seconds between blinks (uniform), as people blink at rest
-BLINK_SHAPE = ((0.0, 0.0), (0.06, 1.0), (0.1, 1.0), (0.2, 0.0))  # (seconds, closure): shut fast, open slower
 HEAD_SWAY = ((0.21, 2.0), (0.13, 1.5), (0.08, 0.8))  # (Hz, degrees) of yaw, pitch and roll
 
 
@@ -46,12 +49,14 @@ def read_sound(path) -> np.ndarray:
 
 
 class AudioFeed:
-    """The sound played in real time into a lip sync (its own thread); :meth:`curves` is the mouth
-    now (the (52,) ARKit curves in Live Link order, 0 outside the mouth). ``seconds`` stops it early."""
+    """The sound played in real time into a lip sync and the voice's prosody (its own thread):
+    :meth:`curves` is the face now (the (52,) ARKit curves in Live Link order: the mouth, the brows
+    and the blinks; 0 elsewhere), :meth:`head` the head's angles. ``seconds`` stops it early."""
 
     def __init__(self, samples: np.ndarray, seconds: float | None = None):
         self.samples = samples
         self.lipsync = LiveLipSync(APPLE)
+        self.prosody = LiveProsody(SAMPLE_RATE)
         self.lock = threading.Lock()
         self.started: float | None = None
         self.seconds = seconds
@@ -77,15 +82,23 @@ class AudioFeed:
                     return
                 with self.lock:
                     self.lipsync.feed(self.samples[k:min(k + CHUNK, end)])
+                    self.prosody.feed(self.samples[k:min(k + CHUNK, end)])
         except Exception as exc:  # noqa: BLE001 -- reported by the run, which goes on without sound
             self.error = exc
 
     def curves(self) -> np.ndarray:
         with self.lock:
             mouth = self.lipsync.curves()
+            upper = self.prosody.curves(APPLE)
         out = np.zeros(len(ARKIT_NAMES))
         out[MOUTH] = mouth[MOUTH]
+        out[UPPER] = upper[UPPER]
         return out
+
+    def head(self) -> np.ndarray:
+        """(3,) the head's yaw, pitch, roll (radians) the voice gives now."""
+        with self.lock:
+            return self.prosody.head()
 
     @property
     def finished(self) -> bool:
@@ -98,22 +111,16 @@ class AudioFeed:
 
 
 class IdleFace:
-    """Blinks at 2-6 s intervals and a slow head sway, for a face driven by sound alone; the same
-    every run (a fixed seed)."""
+    """A slow head sway for a face driven by sound alone, under the voice's nods and leans; the
+    same every run (a fixed seed)."""
 
     def __init__(self, seed: int = 7):
         rng = np.random.default_rng(seed)
-        self.blinks = np.cumsum(rng.uniform(*BLINK_EVERY, size=20000))
         self.phase = rng.uniform(0, 2 * np.pi, size=3)
 
-    def at(self, t: float) -> tuple[float, np.ndarray]:
-        """(eyeBlink weight, head yaw/pitch/roll in radians) at ``t`` seconds."""
-        k = int(np.searchsorted(self.blinks, t, side="right")) - 1
-        since = t - self.blinks[k] if k >= 0 else np.inf
-        times, values = zip(*BLINK_SHAPE)
-        blink = float(np.interp(since, times, values, right=0.0))
-        head = np.array([np.radians(a) * np.sin(2 * np.pi * f * t + p) for (f, a), p in zip(HEAD_SWAY, self.phase)])
-        return blink, head
+    def at(self, t: float) -> np.ndarray:
+        """The head's yaw, pitch, roll sway in radians at ``t`` seconds."""
+        return np.array([np.radians(a) * np.sin(2 * np.pi * f * t + p) for (f, a), p in zip(HEAD_SWAY, self.phase)])
 
 
 class AudioSource(Source):
@@ -142,18 +149,17 @@ class AudioSource(Source):
                     return
                 if i / self.fps >= self.length:
                     return
-                self.slot.put(Frame(i, time.monotonic(), i / self.fps, None, self.feed.curves()))
+                self.slot.put(Frame(i, time.monotonic(), i / self.fps, None, self.feed.curves(), self.feed.head()))
                 i += 1
         finally:
             self.feed.stop()
 
 
-def sound_sample(mouth: np.ndarray, t: float, idle: IdleFace) -> LiveSample:
-    """A frame of a face driven by sound alone: the mouth, idle blinks and head sway."""
-    arkit = np.array(mouth, dtype=np.float64)
-    blink, head = idle.at(t)
-    arkit[ARKIT_NAMES.index("EyeBlinkLeft")] = arkit[ARKIT_NAMES.index("EyeBlinkRight")] = blink
-    return LiveSample(t, False, np.zeros(0), np.clip(arkit, 0.0, 1.0), head, np.zeros(6))
+def sound_sample(curves: np.ndarray, head: np.ndarray, t: float, idle: IdleFace) -> LiveSample:
+    """A frame of a face driven by sound alone: the sound's curves (mouth, brows, blinks), its head
+    motion over the idle sway."""
+    return LiveSample(t, False, np.zeros(0), np.clip(np.array(curves, dtype=np.float64), 0.0, 1.0),
+                      np.asarray(head, dtype=np.float64) + idle.at(t), np.zeros(6))
 
 
 def merge_mouth(sample: LiveSample, mouth: np.ndarray, how: str) -> None:

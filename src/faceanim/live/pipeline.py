@@ -61,7 +61,8 @@ def run_live(source: Source, sinks: list[Sink], performer: LiveFace | None = Non
     when the face has been lost for longer than the performer holds it. ``sound``: an
     :class:`~faceanim.live.audio.AudioFeed` played beside a video source, its mouth merged into each
     frame's by ``mouth`` (:func:`~faceanim.live.audio.merge_mouth`). A source of sound alone
-    (frames without images) drives the mouth, with idle blinks and head sway."""
+    (frames without images) drives the whole face: the mouth, the voice's brows, blinks and
+    head, over an idle sway."""
     from faceanim.drivers.video.tracking import FaceTracker
     from faceanim.io.files import native_stderr_quiet
     from faceanim.live.audio import IdleFace, merge_mouth, sound_sample
@@ -93,7 +94,7 @@ def run_live(source: Source, sinks: list[Sink], performer: LiveFace | None = Non
             if frame is None:
                 break
             if frame.image is None:  # a tick of a sound alone
-                sample = sound_sample(frame.mouth, frame.time, idle)
+                sample = sound_sample(frame.mouth, frame.head, frame.time, idle)
             else:
                 found = track(frame.image, frame.time)
                 if isinstance(performer, LiveSolver):  # the solve and the scores take MediaPipe's scores

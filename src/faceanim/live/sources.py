@@ -21,14 +21,16 @@ from faceanim.errors import FaceAnimError
 class Frame:
     """``index`` (frames captured so far, from 0), ``capture`` (time.monotonic() when it was
     captured), ``time`` (seconds of the source: the clip's time, or since the camera started),
-    ``image`` (H, W, 3) RGB (None for a tick of a sound alone) and ``mouth``: the (52,) ARKit
-    curves a sound gives at that moment (:mod:`faceanim.live.audio`), if any."""
+    ``image`` (H, W, 3) RGB (None for a tick of a sound alone), ``mouth``: the (52,) ARKit
+    curves a sound gives at that moment (:mod:`faceanim.live.audio`), if any, and ``head``: the
+    head's (3,) yaw, pitch, roll the sound gives."""
 
     index: int
     capture: float
     time: float
     image: np.ndarray | None
     mouth: np.ndarray | None = None
+    head: np.ndarray | None = None
 
 
 class Latest:

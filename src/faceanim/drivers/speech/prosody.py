@@ -332,3 +332,197 @@ def with_prosody(curves: np.ndarray, names: list[str], samples: np.ndarray, rate
         out = np.clip(out + expression_curves(emotion, names, n, fps, emotion_intensity(prosody, intensity, fps, n)),
                       0.0, 1.0)
     return out, prosody_head(prosody, fps, n), prosody
+
+
+LIVE_HOP = 0.1  # seconds of sound between two pitch readings of a live stream
+LIVE_CONTEXT = 0.34  # seconds of sound each reading looks at (its newest pitch sample is 20 ms old)
+LIVE_HISTORY = 20.0  # seconds of levels the loud speech and the noise floor are judged on
+LIVE_KEEP = 5.0  # seconds of past events kept (a bump lasts under one)
+LIVE_LEAN = 0.5  # seconds a lean takes to come and to go
+LIVE_QUIET = -60.0  # dBFS: quieter is never speech
+LIVE_RANGE = 10.0  # dB: the loud speech over the noise floor at least, for any sound to be speech
+
+
+class LiveProsody:
+    """The brows, blinks and head of :func:`prosody_curves` and :func:`prosody_head` as the sound
+    comes (``live --audio``): :meth:`feed` chunks of mono samples, then :meth:`curves` and
+    :meth:`head` are the face now. Everything is decided from the sound heard so far:
+
+    - pitch: Praat's tracker on the last :data:`LIVE_CONTEXT` seconds every :data:`LIVE_HOP`,
+      in semitones over the phrase's median so far;
+    - a brow raise starts when the pitch rises :data:`ACCENT_ST` over that median (its height
+      following the rise, :data:`BROW_PER_ST`) and falls over :data:`BROW_FALL` from the moment
+      the pitch turns down;
+    - the eyes blink once a pause has lasted :data:`BLINK_PAUSE` (the offline blink comes at the
+      pause's start), or when :data:`BLINK_MAX_GAP` has passed without one, speech or not;
+    - a pause of :data:`PAUSE_MIN` ends a phrase: the head nods then, and the lean of the phrase
+      (to alternate sides, phrase by phrase) eases back; the head rises with the pitch.
+
+    Memory stays bounded however long the stream: levels of the last :data:`LIVE_HISTORY` seconds
+    and events of the last :data:`LIVE_KEEP`. The same samples in the same chunks give the same face.
+    """
+
+    def __init__(self, rate: int):
+        self.rate = int(rate)
+        self.tail = np.zeros(0)  # the last LIVE_CONTEXT seconds of sound
+        self.heard = 0  # samples fed
+        self.read_to = 0.0  # seconds: pitch and level known up to here
+        self.pending = np.zeros(0)  # samples not yet in a 10 ms level step
+        self.levels = np.full(int(LIVE_HISTORY / STEP), np.nan)  # a ring of 10 ms levels (dB)
+        self.n_levels = 0
+        self.speaking = False
+        self.silent_for = 0.0  # seconds of silence so far (within speech: not yet a pause)
+        self.phrase: tuple[float, float | None] | None = None  # (start, end) of the phrase being heard
+        self.phrase_pitch: list[float] = []  # semitones re 100 Hz of this phrase's voiced samples
+        self.phrase_index = -1
+        self.smooth_st = np.nan  # the pitch over the phrase's median, smoothed (semitones)
+        self.rise = 0.0  # the head's rise with the pitch (semitones, smoothed)
+        self.accent: list | None = None  # [onset, height, turned-down time or None] of the rise being heard
+        self.accents: list[list] = []  # past raises [onset, height, turned]
+        self.blinks: list[float] = []
+        self.last_blink = 0.0
+        self.blinked_this_pause = False
+        self.nods: list[float] = []
+        self.leans: list[tuple[float, float | None, float]] = []  # (start, end, signed tilt)
+
+    @property
+    def time(self) -> float:
+        return self.heard / self.rate
+
+    def feed(self, samples: np.ndarray) -> None:
+        x = np.asarray(samples, dtype=np.float64).ravel()
+        x = np.where(np.isfinite(x), x, 0.0)
+        if not len(x):
+            return
+        self.heard += len(x)
+        keep = int(LIVE_CONTEXT * self.rate)
+        self.tail = np.r_[self.tail, x][-keep:]
+        self.pending = np.r_[self.pending, x]
+        step = max(int(STEP * self.rate), 1)
+        while len(self.pending) >= step:
+            self._level_step(self.pending[:step])
+            self.pending = self.pending[step:]
+        if self.time - self.read_to >= LIVE_HOP:
+            self._pitch_step()
+
+    def _level_step(self, part: np.ndarray) -> None:
+        rms = float(np.sqrt(np.mean(part * part)))
+        level = 20.0 * np.log10(max(rms, 1e-10))
+        self.levels[self.n_levels % len(self.levels)] = level
+        self.n_levels += 1
+        known = self.levels[np.isfinite(self.levels)]
+        loud, floor = np.percentile(known, 95), np.percentile(known, 2)
+        # until a second is heard the percentiles know nothing: a fixed bar (-50 dBFS) then; and a
+        # room's steady noise, whose levels lie within LIVE_RANGE of each other, is never speech
+        threshold = max(loud - SILENCE_DB, floor + SILENCE_SHARE * (loud - floor)) if len(known) >= 100 else -50.0
+        now = self.n_levels * STEP
+        sound = level > max(threshold, LIVE_QUIET) and (loud - floor >= LIVE_RANGE or len(known) < 100)
+        if sound:
+            self.silent_for = 0.0
+            self.blinked_this_pause = False
+            if self.phrase is None:  # a phrase begins
+                self.phrase_index += 1
+                self.phrase = (now - STEP, None)
+                self.phrase_pitch = []
+                self.leans.append((now - STEP, None, TILT if self.phrase_index % 2 == 0 else -TILT))
+        else:
+            self.silent_for += STEP
+            if self.phrase is not None and self.silent_for >= PAUSE_MIN:  # the phrase is over
+                end = now - self.silent_for
+                self.phrase = None
+                self.nods.append(now)
+                if self.leans and self.leans[-1][1] is None:
+                    self.leans[-1] = (self.leans[-1][0], end, self.leans[-1][2])
+                self._turn_down(now)
+            if self.silent_for >= BLINK_PAUSE and not self.blinked_this_pause:
+                self._blink(now)
+                self.blinked_this_pause = True
+        self.speaking = self.phrase is not None
+        if now - self.last_blink >= BLINK_MAX_GAP:
+            self._blink(now)
+
+    def _blink(self, now: float) -> None:
+        self.blinks.append(now)
+        self.last_blink = now
+
+    def _turn_down(self, now: float) -> None:
+        if self.accent is not None:
+            self.accent[2] = now
+            self.accents.append(self.accent)
+            self.accent = None
+
+    def _pitch_step(self) -> None:
+        import parselmouth
+
+        start = self.time - len(self.tail) / self.rate
+        frames = np.zeros(0)
+        times = np.zeros(0)
+        if len(self.tail) / self.rate > 3 / PITCH_FLOOR:
+            track = parselmouth.Sound(self.tail, sampling_frequency=float(self.rate)).to_pitch(
+                time_step=STEP, pitch_floor=PITCH_FLOOR, pitch_ceiling=PITCH_CEILING)
+            times, frames = start + track.xs(), track.selected_array["frequency"]
+        new = times > self.read_to
+        alpha = 1.0 - np.exp(-STEP / SMOOTH)
+        head_alpha = 1.0 - np.exp(-STEP / HEAD_SMOOTH)
+        for t, f0 in zip(times[new], frames[new]):
+            voiced = f0 > 0 and self.speaking
+            if voiced:
+                self.phrase_pitch.append(12.0 * np.log2(f0 / 100.0))
+            if voiced and len(self.phrase_pitch) >= 5:
+                st = self.phrase_pitch[-1] - float(np.median(self.phrase_pitch))
+                self.smooth_st = st if not np.isfinite(self.smooth_st) else self.smooth_st + alpha * (st - self.smooth_st)
+                self.rise += head_alpha * (self.smooth_st - self.rise)
+                self._accent_step(float(t))
+            else:
+                self.rise += head_alpha * (0.0 - self.rise)
+                if not voiced:
+                    self.smooth_st = np.nan
+        self.read_to = self.time - 0.02
+        # what is long past is forgotten
+        old = self.time - LIVE_KEEP
+        self.accents = [a for a in self.accents if a[2] is None or a[2] > old]
+        self.blinks = [b for b in self.blinks if b > old]
+        self.nods = [n for n in self.nods if n > old]
+        self.leans = [le for le in self.leans if le[1] is None or le[1] > old]
+
+    def _accent_step(self, t: float) -> None:
+        st = self.smooth_st
+        if self.accent is None:
+            last = max([a[0] for a in self.accents], default=-np.inf)
+            if st >= ACCENT_ST and t - last >= ACCENT_GAP:
+                self.accent = [t, st, None]
+        elif st > self.accent[1]:
+            self.accent[1] = st
+        elif st < self.accent[1] - 0.5:  # turned down: the peak is past
+            self._turn_down(t)
+
+    def curves(self, names: list[str], now: float | None = None) -> np.ndarray:
+        """(len(names),) ARKit weights in 0..1 of the brows and blinks now (0 in other columns)."""
+        t = self.time if now is None else float(now)
+        brow = 0.0
+        for onset, height, turned in [*self.accents, *([self.accent] if self.accent else [])]:
+            up = min(BROW_MAX, BROW_PER_ST * height)
+            if turned is None or t < turned:
+                e = 0.5 - 0.5 * np.cos(np.pi * np.clip((t - onset) / BROW_LEAD, 0.0, 1.0))
+            else:
+                e = 0.5 + 0.5 * np.cos(np.pi * np.clip((t - turned) / BROW_FALL, 0.0, 1.0))
+                e *= 0.5 - 0.5 * np.cos(np.pi * np.clip((turned - onset) / BROW_LEAD, 0.0, 1.0))
+            brow = max(brow, up * float(e))
+        blink = max([float(_bump(np.array([t]), b + BLINK_CLOSE, BLINK_CLOSE, BLINK_OPEN)[0]) for b in self.blinks],
+                    default=0.0)
+        out = np.zeros(len(names))
+        for k, name in enumerate(names):
+            out[k] = brow if name in BROWS else blink if name in BLINKS else 0.0
+        return np.clip(out, 0.0, 1.0)
+
+    def head(self, now: float | None = None) -> np.ndarray:
+        """(3,) the head's yaw, pitch, roll in radians now (faceanim's signs, as :func:`prosody_head`)."""
+        t = self.time if now is None else float(now)
+        pitch = -HEAD_PER_ST * self.rise
+        pitch += sum(NOD * float(_bump(np.array([t]), n + NOD_DOWN, NOD_DOWN, NOD_UP)[0]) for n in self.nods)
+        roll = 0.0
+        for start, end, tilt in self.leans:
+            come = 0.5 - 0.5 * np.cos(np.pi * np.clip((t - start) / LIVE_LEAN, 0.0, 1.0))
+            go = 1.0 if end is None else 0.5 + 0.5 * np.cos(np.pi * np.clip((t - end) / LIVE_LEAN, 0.0, 1.0))
+            roll += tilt * come * go
+        return np.array([0.0, pitch, roll])
