@@ -54,7 +54,7 @@ def test_a_pitch_rise_raises_the_brows_and_a_pause_closes_the_eyes():
     assert int(np.argmax(brow)) == pytest.approx(0.9 * fps, abs=2) and brow.max() > 0.3
     assert np.allclose(curves[:, [names.index(n) for n in BROWS]], brow[:, None])
     assert brow[int(2.1 * fps):int(3.0 * fps)].max() == 0.0
-    others = [k for k, n in enumerate(names) if n not in BROWS and not n.startswith("eyeBlink")]
+    others = [k for k, n in enumerate(names) if n not in BROWS and not n.startswith(("eyeBlink", "eyeLook"))]
     assert not curves[:, others].any() and curves.min() >= 0.0 and curves.max() <= 1.0
 
 
@@ -232,6 +232,27 @@ def test_live_prosody_follows_the_voice_as_it_comes():
     assert np.abs(head[t < 0.35]).max() == 0.0
 
 
+def test_live_eyes_look_away_in_a_long_phrase_and_come_back_when_it_ends():
+    """Heard as it comes: in each 2 s phrase the eyes look aside LIVE_GAZE_AFTER into it (the
+    first to the left, the second to the right) and are back within GAZE_TURN plus the pause's
+    PAUSE_MIN after it ends; never in the 0.3 s phrase."""
+    from faceanim.drivers.speech.prosody import GAZE_AWAY, LOOK_LEFT, LOOK_RIGHT, LiveProsody
+
+    flat = lambda t: np.full_like(t, 120.0)  # noqa: E731
+    x = np.r_[silence(0.4), voice(flat, 2.0), silence(0.6), voice(flat, 2.0), silence(0.6), voice(flat, 0.3),
+              silence(0.6)]
+    live, names = LiveProsody(RATE), list(APPLE_NAMES)
+    rows = []
+    for k in range(0, len(x), 320):
+        live.feed(x[k:k + 320])
+        c = live.curves(names)
+        rows.append((live.time, c[names.index(LOOK_LEFT[0])], c[names.index(LOOK_RIGHT[0])]))
+    t, left, right = np.array(rows).T
+    assert left[(t > 1.2) & (t < 2.0)].min() == pytest.approx(GAZE_AWAY) and right[t < 3.0].max() == 0
+    assert right[(t > 3.8) & (t < 4.6)].min() == pytest.approx(GAZE_AWAY) and left[t > 3.0].max() == 0
+    assert left[(t > 2.85) & (t < 3.0)].max() == 0 and right[t > 5.45].max() == 0
+
+
 def test_live_prosody_is_the_same_in_any_chunks_and_stays_small_for_hours():
     """The same sound in 20 ms or 7 ms chunks gives the same face at the same moments (to the
     pitch reading's 10 ms); minutes of silence keep blinking every BLINK_MAX_GAP and keep no
@@ -259,3 +280,40 @@ def test_live_prosody_is_the_same_in_any_chunks_and_stays_small_for_hours():
     assert live.time - live.last_blink <= BLINK_MAX_GAP
     live.feed(np.full(320, np.nan))  # a broken chunk is silence
     assert np.isfinite(live.head()).all() and np.isfinite(live.curves(list(APPLE_NAMES))).all()
+
+
+def test_the_eyes_look_away_as_a_long_phrase_begins_and_come_back_before_it_ends():
+    """Two phrases of 2 s and a short one of 0.5 s: the eyes look aside (and a little up) early in
+    each long phrase, to the left in the first and the right in the second, and are back on the
+    listener before each ends; none in the short phrase; the two eyes turn the same way."""
+    from faceanim.drivers.speech.prosody import GAZE_AWAY, GAZE_UP, LOOK_LEFT, LOOK_RIGHT, gaze_aversions
+
+    flat = lambda t: np.full_like(t, 120.0)  # noqa: E731
+    x = np.r_[silence(0.4), voice(flat, 2.0), silence(0.5), voice(flat, 2.0), silence(0.5), voice(flat, 0.5),
+              silence(0.4)]
+    p = analyse(x, RATE)
+    assert [side for *_, side in gaze_aversions(p)] == [1, -1]
+    names, fps = list(APPLE_NAMES), 100.0
+    c = prosody_curves(p, names, fps, int(x.size / RATE * fps))
+    left = c[:, [names.index(n) for n in LOOK_LEFT]]
+    right = c[:, [names.index(n) for n in LOOK_RIGHT]]
+    up = c[:, names.index("eyeLookUpLeft")]
+    assert np.array_equal(left[:, 0], left[:, 1]) and np.array_equal(right[:, 0], right[:, 1])
+    assert left[int(1.0 * fps), 0] == pytest.approx(GAZE_AWAY) and right[int(1.0 * fps)].max() == 0
+    assert right[int(3.5 * fps), 0] == pytest.approx(GAZE_AWAY) and left[int(3.5 * fps)].max() == 0
+    assert up[int(1.0 * fps)] == pytest.approx(GAZE_UP * GAZE_AWAY)
+    for end in (2.4, 4.9):  # back on the listener for the phrase's last half
+        assert left[int((end - 0.9) * fps):int(end * fps)].max() == 0
+        assert right[int((end - 0.9) * fps):int(end * fps)].max() == 0
+    assert c[int(5.3 * fps):, [names.index(n) for n in LOOK_LEFT + LOOK_RIGHT]].max() == 0
+    # the .fap's and the director's eyeballs turn as perform.eye_angles reads these curves
+    from faceanim.drivers.mpeg4 import blend_actions
+    from faceanim.drivers.speech.prosody import prosody_actions
+    from faceanim.perform import EYE_CONTROLS, eye_angles
+    from faceanim.standards.mpeg4 import fap
+
+    stream = blend_actions(prosody_actions(p), len(c), fps)
+    eyes = eye_angles(c[:, [names.index(n) for n in EYE_CONTROLS[2:]]])
+    for name, col in (("yaw_l_eyeball", 0), ("pitch_l_eyeball", 1), ("yaw_r_eyeball", 3), ("pitch_r_eyeball", 4)):
+        np.testing.assert_allclose(stream.values[:, fap(name).number - 1] * 1e-5, eyes[:, col], atol=2e-3)
+    assert eyes[int(1.0 * fps), 0] > 0.1 and eyes[int(3.5 * fps), 0] < -0.1  # to the left, then the right

@@ -96,8 +96,11 @@ def _say_animation(args, face, phones, wav):
         # a .fap file is for any face: MPEG-4's neutral face has closed lips, so no gap to close
         return speech_stream(0.0, phones, args.fps, extra, name=Path(args.output).stem)
 
+    from faceanim.perform import EYE_CONTROLS, eye_angles
+
+    eyes = eye_angles(curves[:, [names.index(n) for n in EYE_CONTROLS[2:]]])  # the looks away, as a CSV's angles
     out = Path(args.output)
-    return Animation(args.fps, arkit=curves, head=head, face=face, fap=fap_stream, cues=phone_cues(phones),
+    return Animation(args.fps, arkit=curves, head=head, eyes=eyes, face=face, fap=fap_stream, cues=phone_cues(phones),
                      sound=wav, sound_name=str(Path(args.audio).resolve()) if args.audio else "", name=out.stem,
                      quantize=args.compact, size=args.size, view=face.view() if face is not None else None)
 

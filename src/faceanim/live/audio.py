@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from faceanim.drivers.speech.phonemes import SAMPLE_RATE
-from faceanim.drivers.speech.prosody import BLINKS, BROWS, LiveProsody
+from faceanim.drivers.speech.prosody import BLINKS, BROWS, LOOKS, LiveProsody
 from faceanim.drivers.speech.stream import LiveLipSync
 from faceanim.errors import FaceAnimError
 from faceanim.standards.arkit import APPLE_NAMES, ARKIT_NAMES
@@ -29,7 +29,7 @@ from faceanim.live.sources import Frame, Source
 
 APPLE = list(APPLE_NAMES)
 MOUTH = np.array([n.startswith(("Jaw", "Mouth")) for n in ARKIT_NAMES])  # the curves the lip sync drives
-UPPER = np.array([n in BROWS + BLINKS for n in APPLE_NAMES])  # and those the voice's prosody drives
+UPPER = np.array([n in BROWS + BLINKS + LOOKS for n in APPLE_NAMES])  # and those the voice's prosody drives
 CLOSE = ARKIT_NAMES.index("MouthClose")
 CHUNK = SAMPLE_RATE // 50  # 20 ms of audio per step
 TICK_FPS = 30.0
@@ -50,8 +50,8 @@ def read_sound(path) -> np.ndarray:
 
 class AudioFeed:
     """The sound played in real time into a lip sync and the voice's prosody (its own thread):
-    :meth:`curves` is the face now (the (52,) ARKit curves in Live Link order: the mouth, the brows
-    and the blinks; 0 elsewhere), :meth:`head` the head's angles. ``seconds`` stops it early."""
+    :meth:`curves` is the face now (the (52,) ARKit curves in Live Link order: the mouth, the brows,
+    the blinks and the looks away; 0 elsewhere), :meth:`head` the head's angles. ``seconds`` stops it early."""
 
     def __init__(self, samples: np.ndarray, seconds: float | None = None):
         self.samples = samples
@@ -158,8 +158,11 @@ class AudioSource(Source):
 def sound_sample(curves: np.ndarray, head: np.ndarray, t: float, idle: IdleFace) -> LiveSample:
     """A frame of a face driven by sound alone: the sound's curves (mouth, brows, blinks), its head
     motion over the idle sway."""
-    return LiveSample(t, False, np.zeros(0), np.clip(np.array(curves, dtype=np.float64), 0.0, 1.0),
-                      np.asarray(head, dtype=np.float64) + idle.at(t), np.zeros(6))
+    from faceanim.perform import EYE_CONTROLS, eye_angles
+
+    arkit = np.clip(np.array(curves, dtype=np.float64), 0.0, 1.0)
+    eyes = eye_angles(arkit[[APPLE.index(n) for n in EYE_CONTROLS[2:]]])  # the looks away as the eyes' angles
+    return LiveSample(t, False, np.zeros(0), arkit, np.asarray(head, dtype=np.float64) + idle.at(t), eyes)
 
 
 def merge_mouth(sample: LiveSample, mouth: np.ndarray, how: str) -> None:

@@ -160,9 +160,41 @@ BROWS = ("browInnerUp", "browOuterUpLeft", "browOuterUpRight")
 BLINKS = ("eyeBlinkLeft", "eyeBlinkRight")
 
 
+GAZE_AWAY = 0.3  # ARKit look weight of a look away (about 0.17 rad: perform.eye_angles)
+GAZE_UP = 0.5  # of that, upwards as well (people look up and aside as they think what to say)
+GAZE_PHRASE = 1.0  # seconds a phrase lasts at least for its speaker to look away in it
+GAZE_START, GAZE_SHARE, GAZE_LONGEST = 0.1, 0.4, 1.5  # seconds into the phrase; the share of it, at most seconds
+GAZE_TURN = 0.2  # seconds the eyes take to go and to come back
+LOOK_LEFT = ("eyeLookOutLeft", "eyeLookInRight")  # the eyes to the speaker's left
+LOOK_RIGHT = ("eyeLookInLeft", "eyeLookOutRight")
+LOOK_UP = ("eyeLookUpLeft", "eyeLookUpRight")
+LOOKS = LOOK_LEFT + LOOK_RIGHT + LOOK_UP
+
+
+def gaze_aversions(prosody: Prosody) -> list[tuple[float, float, int]]:
+    """(start, end, side) of each look away: speakers look away as a long phrase begins and back
+    to the listener before it ends (Kendon 1967; Argyle and Cook 1976): in each phrase of
+    :data:`GAZE_PHRASE` or more, from :data:`GAZE_START` into it, for :data:`GAZE_SHARE` of it (at
+    most :data:`GAZE_LONGEST`), to the left (side +1) and right (-1) phrase by phrase."""
+    out = []
+    for start, end in phrases(prosody):
+        if end - start >= GAZE_PHRASE:
+            out.append((start + GAZE_START, start + GAZE_START + min(GAZE_SHARE * (end - start), GAZE_LONGEST),
+                        1 if len(out) % 2 == 0 else -1))
+    return out
+
+
+def _held(t: np.ndarray, start: float, end: float, turn: float) -> np.ndarray:
+    """0..1: rising over ``turn`` seconds from ``start``, held, falling over ``turn`` to ``end``."""
+    up = np.clip((t - start) / turn, 0.0, 1.0)
+    down = np.clip((end - t) / turn, 0.0, 1.0)
+    return 0.5 - 0.5 * np.cos(np.pi * np.minimum(up, down))
+
+
 def prosody_curves(prosody: Prosody, names: list[str], fps: float, n_frames: int) -> np.ndarray:
-    """(n_frames, len(names)) ARKit weights in 0..1 of the brows and blinks of ``prosody`` (module
-    docstring), sampled at ``fps`` from 0 s; columns other than :data:`BROWS` and :data:`BLINKS` are 0."""
+    """(n_frames, len(names)) ARKit weights in 0..1 of the brows, blinks and looks away of
+    ``prosody`` (module docstring), sampled at ``fps`` from 0 s; columns other than :data:`BROWS`,
+    :data:`BLINKS` and :data:`LOOKS` are 0."""
     t = np.arange(int(n_frames)) / float(fps)
     brow = np.zeros(len(t))
     for at, semitones in prosody.accents:
@@ -170,12 +202,16 @@ def prosody_curves(prosody: Prosody, names: list[str], fps: float, n_frames: int
     blink = np.zeros(len(t))
     for at in blink_times(prosody):
         blink = np.maximum(blink, _bump(t, at + BLINK_CLOSE, BLINK_CLOSE, BLINK_OPEN))
+    left, right = np.zeros(len(t)), np.zeros(len(t))
+    for start, end, side in gaze_aversions(prosody):
+        away = GAZE_AWAY * _held(t, start, end, GAZE_TURN)
+        left, right = (np.maximum(left, away), right) if side > 0 else (left, np.maximum(right, away))
+    columns = {**{n: brow for n in BROWS}, **{n: blink for n in BLINKS}, **{n: left for n in LOOK_LEFT},
+               **{n: right for n in LOOK_RIGHT}, **{n: GAZE_UP * np.maximum(left, right) for n in LOOK_UP}}
     out = np.zeros((len(t), len(names)))
     for k, name in enumerate(names):
-        if name in BROWS:
-            out[:, k] = brow
-        elif name in BLINKS:
-            out[:, k] = blink
+        if name in columns:
+            out[:, k] = columns[name]
     return np.clip(out, 0.0, 1.0)
 
 
@@ -262,10 +298,10 @@ ANGLE_UNIT = 1e-5  # radians per MPEG-4 angle unit (AU): head_pitch, head_roll
 
 
 def prosody_actions(prosody: Prosody, offset: float = 0.0) -> list:
-    """The same brows, blinks, nods and leans as :func:`prosody_curves` and :func:`prosody_head`, as
-    MPEG-4 actions (Lee et al.'s director and ``.fap`` files): the eyebrow raises
-    (``raise_*_eyebrow``, :data:`BROW_FAP` per unit of brow), eyelid closures, ``head_pitch`` nods and
-    ``head_roll`` leans, starting ``offset`` seconds into the timeline. The slow rise of the head
+    """The same brows, blinks, looks away, nods and leans as :func:`prosody_curves` and
+    :func:`prosody_head`, as MPEG-4 actions (Lee et al.'s director and ``.fap`` files): the eyebrow
+    raises (``raise_*_eyebrow``, :data:`BROW_FAP` per unit of brow), eyelid closures, the eyeballs'
+    yaw and pitch, ``head_pitch`` nods and ``head_roll`` leans, starting ``offset`` seconds into the timeline. The slow rise of the head
     with the pitch is left out (a stream of actions, not a curve)."""
     from faceanim.drivers.mpeg4 import Action, fap_set
 
@@ -283,6 +319,16 @@ def prosody_actions(prosody: Prosody, offset: float = 0.0) -> list:
         out.append(Action("blink", blink, offset + at, BLINK_CLOSE + BLINK_OPEN, 1.0, "smooth",
                           BLINK_CLOSE / (BLINK_CLOSE + BLINK_OPEN), 1.0 - BLINK_CLOSE / (BLINK_CLOSE + BLINK_OPEN),
                           weight=3.0))
+    from faceanim.standards.arkit import LOOK_ANGLES
+
+    for start, end, side in gaze_aversions(prosody):  # the eyeballs turned as the eyeLook curves turn them
+        outward, inward = GAZE_AWAY * LOOK_ANGLES["Out"], GAZE_AWAY * LOOK_ANGLES["In"]
+        yaw_l, yaw_r = (outward, inward) if side > 0 else (-inward, -outward)
+        turn = min(GAZE_TURN / (end - start), 0.5)
+        out.append(Action("look away", fap_set({"yaw_l_eyeball": yaw_l / ANGLE_UNIT, "yaw_r_eyeball": yaw_r / ANGLE_UNIT,
+                                                "pitch_l_eyeball": -GAZE_UP * GAZE_AWAY * LOOK_ANGLES["Up"] / ANGLE_UNIT,
+                                                "pitch_r_eyeball": -GAZE_UP * GAZE_AWAY * LOOK_ANGLES["Up"] / ANGLE_UNIT}),
+                          offset + start, end - start, 1.0, "smooth", turn, turn))
     for k, (start, end) in enumerate(phrases(prosody)):
         last = [at for at, _ in prosody.accents if start <= at <= end]
         at = last[-1] if last else end
@@ -339,6 +385,7 @@ LIVE_CONTEXT = 0.34  # seconds of sound each reading looks at (its newest pitch 
 LIVE_HISTORY = 20.0  # seconds of levels the loud speech and the noise floor are judged on
 LIVE_KEEP = 5.0  # seconds of past events kept (a bump lasts under one)
 LIVE_LEAN = 0.5  # seconds a lean takes to come and to go
+LIVE_GAZE_AFTER = 0.5  # seconds a phrase has lasted when the eyes look away (a short one never does)
 LIVE_QUIET = -60.0  # dBFS: quieter is never speech
 LIVE_RANGE = 10.0  # dB: the loud speech over the noise floor at least, for any sound to be speech
 
@@ -356,7 +403,9 @@ class LiveProsody:
     - the eyes blink once a pause has lasted :data:`BLINK_PAUSE` (the offline blink comes at the
       pause's start), or when :data:`BLINK_MAX_GAP` has passed without one, speech or not;
     - a pause of :data:`PAUSE_MIN` ends a phrase: the head nods then, and the lean of the phrase
-      (to alternate sides, phrase by phrase) eases back; the head rises with the pitch.
+      (to alternate sides, phrase by phrase) eases back; the head rises with the pitch;
+    - once a phrase has lasted :data:`LIVE_GAZE_AFTER` the eyes look away (sides alternating), for
+      at most :data:`GAZE_LONGEST`, and come back when it ends.
 
     Memory stays bounded however long the stream: levels of the last :data:`LIVE_HISTORY` seconds
     and events of the last :data:`LIVE_KEEP`. The same samples in the same chunks give the same face.
@@ -384,6 +433,7 @@ class LiveProsody:
         self.blinked_this_pause = False
         self.nods: list[float] = []
         self.leans: list[tuple[float, float | None, float]] = []  # (start, end, signed tilt)
+        self.looks: list[list] = []  # [start, end, side] of the looks away
 
     @property
     def time(self) -> float:
@@ -438,6 +488,13 @@ class LiveProsody:
                 self._blink(now)
                 self.blinked_this_pause = True
         self.speaking = self.phrase is not None
+        if self.speaking:
+            begun = self.phrase[0]
+            if now - begun >= LIVE_GAZE_AFTER and not (self.looks and self.looks[-1][0] >= begun):
+                self.looks.append([now, now + GAZE_LONGEST, 1 if len(self.looks) % 2 == 0 else -1])
+                self.looks = self.looks[-2:]
+        elif self.looks and self.looks[-1][1] > now:  # the phrase is over: the eyes come back
+            self.looks[-1][1] = now
         if now - self.last_blink >= BLINK_MAX_GAP:
             self._blink(now)
 
@@ -497,7 +554,7 @@ class LiveProsody:
             self._turn_down(t)
 
     def curves(self, names: list[str], now: float | None = None) -> np.ndarray:
-        """(len(names),) ARKit weights in 0..1 of the brows and blinks now (0 in other columns)."""
+        """(len(names),) ARKit weights in 0..1 of the brows, blinks and looks now (0 in other columns)."""
         t = self.time if now is None else float(now)
         brow = 0.0
         for onset, height, turned in [*self.accents, *([self.accent] if self.accent else [])]:
@@ -510,10 +567,13 @@ class LiveProsody:
             brow = max(brow, up * float(e))
         blink = max([float(_bump(np.array([t]), b + BLINK_CLOSE, BLINK_CLOSE, BLINK_OPEN)[0]) for b in self.blinks],
                     default=0.0)
-        out = np.zeros(len(names))
-        for k, name in enumerate(names):
-            out[k] = brow if name in BROWS else blink if name in BLINKS else 0.0
-        return np.clip(out, 0.0, 1.0)
+        left = right = 0.0
+        for start, end, side in self.looks:
+            away = GAZE_AWAY * float(_held(np.array([t]), start, max(end, start + 2 * GAZE_TURN), GAZE_TURN)[0])
+            left, right = (max(left, away), right) if side > 0 else (left, max(right, away))
+        columns = {**{n: brow for n in BROWS}, **{n: blink for n in BLINKS}, **{n: left for n in LOOK_LEFT},
+                   **{n: right for n in LOOK_RIGHT}, **{n: GAZE_UP * max(left, right) for n in LOOK_UP}}
+        return np.clip(np.array([columns.get(name, 0.0) for name in names]), 0.0, 1.0)
 
     def head(self, now: float | None = None) -> np.ndarray:
         """(3,) the head's yaw, pitch, roll in radians now (faceanim's signs, as :func:`prosody_head`)."""
