@@ -1,11 +1,15 @@
-"""The voice's prosody moving the upper face: brows on pitch accents, blinks at pauses.
+"""The voice's prosody moving the rest of the face: brows on pitch accents, blinks at pauses, the
+eyes looking away and back, the head nodding and leaning with the phrases, an emotion phrase by
+phrase.
 
 People who talk raise their brows on the syllables they stress and blink when they pause
 (Cavé et al. 1996 on brows and F0 rises; Ekman 1979 on brows as "batons"; blinks cluster at
-pauses and phrase ends). :func:`analyse` reads that from the sound alone, whatever produced it
-(espeak-ng for ``say TEXT``, a recording for ``say --audio``):
+pauses and phrase ends), look away as they begin a long turn and back as they end it (Kendon
+1967), and move the head with the voice's pitch (Yehia et al. 2002). :func:`analyse` reads the
+sound alone, whatever produced it (espeak-ng for ``say TEXT``, a recording for ``say --audio``):
 
-- the voice's pitch (F0) with Praat's autocorrelation tracker (``praat-parselmouth``), 10 ms steps;
+- the voice's pitch (F0) with Praat's autocorrelation tracker (``praat-parselmouth``), 10 ms steps,
+  in two passes (the second in the speaker's own range);
 - its level (RMS in 25 ms windows, dB) and the pauses: silences of at least :data:`PAUSE_MIN`, the
   level under the loud speech's by more than :data:`SILENCE_DB` or nearer the recording's noise
   floor than :data:`SILENCE_SHARE` of the way up;
@@ -17,9 +21,13 @@ pauses and phrase ends). :func:`analyse` reads that from the sound alone, whatev
 ``browOuterUpLeft/Right`` rise before each accent and fall after it, higher for a bigger rise
 (:data:`BROW_PER_ST` per semitone up to :data:`BROW_MAX`); both ``eyeBlink`` close once at the
 start of each pause of :data:`BLINK_PAUSE` or more, and once in any run of speech longer than
-:data:`BLINK_MAX_GAP` without one (at its quietest moment). :func:`prosody_head` moves the head
-with the phrases: a rise with the voice's pitch, a nod at each phrase's last accent, a lean over
-each phrase. The same sound gives the same curves.
+:data:`BLINK_MAX_GAP` without one (at its quietest moment); the ``eyeLook`` curves look aside
+early in each long phrase (:func:`gaze_aversions`). :func:`prosody_head` moves the head with the
+phrases: a rise with the voice's pitch, a nod at each phrase's last accent, a lean over each
+phrase. :func:`emotion_intensity` and :func:`emotion_actions` carry an emotion phrase by phrase
+(stronger in livelier phrases); :func:`prosody_actions` is all of it as MPEG-4 actions (the
+director, ``.fap`` files); :class:`LiveProsody` hears it as the sound comes (``live --audio``).
+The same sound gives the same curves.
 """
 
 from __future__ import annotations
