@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from faceanim.build.photo import (
     fit_head,
+    fit_identity,
     load_views,
     prior_points,
     reconstruct,
@@ -151,12 +152,13 @@ def people(data: Path, count: int, side_yaw: float) -> None:
         w = np.random.default_rng(seed).standard_normal(len(modes))
         v = head.mesh.vertices + np.einsum("k,kvd->vd", w, modes)
         truths.append((f"ICT seed {seed}", Mesh(v, skin_faces, name=f"ict{seed}")))
-    faces, built = [], {True: [], False: []}
+    faces, built, dense = [], {True: [], False: []}, []
     for name, mesh in truths:
         face = Face(mesh, landmarks_478(mesh, detect_landmarks(mesh)))
         faces.append(face)
         views = load_views(("front", render(mesh, 0.0)), [("side", render(mesh, side_yaw))])
         rec = reconstruct(views, prior, normals)
+        dense.append(head.identity(fit_identity(head, views, rec)))
         for ident in (True, False):
             fh = fit_head(head, rec, "dffd", keep_expression=True, identity=ident)
             built[ident].append(fh.vertices)
@@ -165,7 +167,7 @@ def people(data: Path, count: int, side_yaw: float) -> None:
           "| others', identity (mean) | own/other, identity | own/other, no identity |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     ratios = {True: [], False: []}
-    gen_ratio, bounds = [], []
+    gen_ratio, bounds, dense_rows = [], [], []
     for i, ((name, _), face) in enumerate(zip(truths, faces)):
         generic, _ = surface_error(face, head.mesh.vertices, head, head.landmarks())
         # the bound of a landmark-driven identity: fitted to the scan's own detected 3D landmarks
@@ -180,11 +182,19 @@ def people(data: Path, count: int, side_yaw: float) -> None:
             row[ident] = (own, other)
             ratios[ident].append(own / other)
         gen_ratio.append(row[True][0] / generic)
+        errs = [surface_error(face, v, head, head.landmarks(v))[0] for v in dense]
+        dense_rows.append((name, errs[i], float(np.mean([e for j, e in enumerate(errs) if j != i]))))
         print(f"| {name} | {generic:.4f} | {bound:.4f} | {row[True][0]:.4f} | {row[False][0]:.4f} | {row[True][1]:.4f} | "
               f"{row[True][0] / row[True][1]:.2f} | {row[False][0] / row[False][1]:.2f} |", flush=True)
     print(f"| median | | | | | | {np.median(ratios[True]):.2f} | {np.median(ratios[False]):.2f} |")
     print(f"own photo head / generic head (identity): median {np.median(gen_ratio):.2f}; identity from the scan's "
           f"own 3D landmarks / generic head: median {np.median(bounds):.2f}")
+    print("\nDense identity (fit_identity: front landmarks + profile silhouette, the morphable head alone, no warp)")
+    print("| person | own | others' (mean) | own/other |")
+    print("|---|---:|---:|---:|")
+    for name, own, other in dense_rows:
+        print(f"| {name} | {own:.4f} | {other:.4f} | {own / other:.2f} |")
+    print(f"| median | | | {np.median([o / t for _, o, t in dense_rows]):.2f} |")
 
 
 def real_photos(data: Path, sheet: Path | None) -> None:

@@ -106,6 +106,7 @@ class PhotoView:
     profile: bool = False
     facing: int = 0
     mediapipe: np.ndarray | None = None  # (478, 3) MediaPipe's own 3D estimate, pixels
+    outline: np.ndarray | None = None  # (N, 2) a profile's silhouette edge, head top to neck (pixels)
 
     @property
     def size(self) -> tuple[int, int]:
@@ -176,7 +177,8 @@ def detect_view(image: np.ndarray, name: str, role: str) -> PhotoView:
             except LandmarkError as exc:
                 raise LandmarkError(f"side photo '{_named(name)}': {exc}") from None
             return PhotoView(name, image, role, {int(k): np.asarray(v, float) for k, v in prof.points.items()},
-                             {k: np.asarray(v, float) for k, v in prof.extra.items()}, True, prof.facing)
+                             {k: np.asarray(v, float) for k, v in prof.extra.items()}, True, prof.facing,
+                             outline=np.asarray(prof.curve, dtype=np.float64))
     try:
         lm = detect_landmarks_in_image(image, scales=(1.0,))
     except LandmarkError:
@@ -447,6 +449,127 @@ def fit_expression(head, target: np.ndarray, names=EXPRESSION_SHAPES, ridge: flo
     return {n: float(v) for n, v in zip(names, w)}
 
 
+# ---------------------------------------------------------------------------------------- identity
+# the dense identity fit (fit_identity): each term's residuals in the generic head's inter-ocular
+# distances, divided by these sigmas; the weights' prior N(0, 1)
+IDENTITY_LANDMARK_SIGMA = 0.01  # a detected landmark in a front view
+IDENTITY_SILHOUETTE_SIGMA = 0.01  # a point of a profile's silhouette edge
+IDENTITY_ITERATIONS = 8
+# a vertex is on the head's outline in a view where its normal is this close to perpendicular to
+# the view (|cos|); a silhouette point further than SILHOUETTE_REACH (IOD) from every such vertex
+# is not matched
+RIM_COS = 0.3
+SILHOUETTE_REACH = 0.1
+
+
+@lru_cache(maxsize=2)
+def identity_model(head) -> tuple[np.ndarray, np.ndarray]:
+    """The identity modes at every vertex (K, V, 3) and at the reconstruction's points (K, 480, 3)
+    (478 landmarks + extras), float64, computed once per head (read-only)."""
+    basis = head.identity_basis().astype(np.float64)
+    lmat = head.landmark_matrix()
+    ex = extra_vertices(head)
+    at_points = np.stack([np.vstack([lmat @ b, b[[ex[n] for n in EXTRA_POINTS]]]) for b in basis])
+    basis.setflags(write=False)
+    at_points.setflags(write=False)
+    return basis, at_points
+
+
+def _view_targets(view: PhotoView) -> tuple[np.ndarray, np.ndarray]:
+    return _observations(view, {name: 478 + k for k, name in enumerate(EXTRA_POINTS)})
+
+
+def _refit_camera(view: PhotoView, points: np.ndarray, rows: np.ndarray, pix: np.ndarray) -> ViewCamera:
+    if view.profile:
+        return fit_profile_camera(points[rows], pix, view.facing, view.size)
+    return fit_camera(points[rows], pix, view.size)
+
+
+def _silhouette_rows(view: PhotoView, cam: ViewCamera, neutral: np.ndarray, vertices: np.ndarray,
+                     normals: np.ndarray, skin: np.ndarray, basis: np.ndarray, unit: float, span: tuple[int, int]):
+    """Linear rows of a profile's silhouette term: for each point ``c`` of the photo's silhouette
+    edge (between rows ``span`` of the outline), the head's nearest outline vertex ``v`` (its
+    normal perpendicular to the view) and ``n . (P v(w) + o - c)`` with ``n`` the edge's normal."""
+    from scipy.spatial import cKDTree
+
+    curve = view.outline[span[0]:span[1] + 1]
+    tangent = np.gradient(curve, axis=0)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
+    nrm = np.c_[-tangent[:, 1], tangent[:, 0]]
+    rim = skin[np.abs(normals[skin] @ cam.direction) < RIM_COS]
+    rim = rim[cam.depth(vertices[rim]) > cam.depth(vertices[skin]).mean()]  # the near side of the head
+    proj = cam.project(vertices[rim])
+    dist, k = cKDTree(proj).query(curve)
+    ok = dist < SILHOUETTE_REACH * unit
+    curve, nrm, idx = curve[ok], nrm[ok], rim[k[ok]]
+    m = cam.matrix
+    # d/dw of n . (M v(w)): n^T M B_k[v]
+    a = np.einsum("nj,ji,kni->nk", nrm, m, basis[:, idx])
+    b = np.einsum("nj,nj->n", nrm, curve - cam.offset - neutral[idx] @ m.T)
+    return a / unit, b / unit
+
+
+def fit_identity(head, views: list[PhotoView], rec: Reconstruction, iterations: int = IDENTITY_ITERATIONS,
+                 prior: float = 100.0) -> np.ndarray:
+    """The identity weights (K,) of the person the photos show, fitted to the photos themselves.
+
+    Each view's camera (from :func:`reconstruct`) sees the morphable head ``v(w) = neutral + B w``;
+    the weights minimise, over the views, the 2D distance from each detected landmark to where
+    the camera projects the head's own (``IDENTITY_LANDMARK_SIGMA``), plus on a true profile the
+    distance along the silhouette's normal from the silhouette edge to the head's outline there
+    (``IDENTITY_SILHOUETTE_SIGMA``), plus ``prior |w|^2``. Correspondences (which vertex makes the
+    outline) are found again on each iteration and the cameras are refitted to the new head's
+    points; within an iteration the problem is linear least squares. ``prior`` 100 was the best of
+    1, 10, 100 on ICT identities sampled with seeds 1000-1009 (tuning set: own/other median 0.71,
+    0.66, 0.62; the landmark-only identity of :func:`fit_head` 0.81). Not yet used by
+    :func:`head_from_photos`: a detected landmark on a render sits 0.015 IOD from the head's own even
+    for the true weights, so landmarks say little about the identity (docs/photos.md)."""
+    from faceanim.face.mesh import vertex_normals
+
+    basis, at_points = identity_model(head)
+    k = basis.shape[0]
+    p0, _ = prior_points(head)
+    skin = head.parts["skin"]
+    iod0 = float(np.linalg.norm(p0[OUTER_EYE_CORNERS[0]] - p0[OUTER_EYE_CORNERS[1]]))
+    targets = [_view_targets(v) for v in views]
+    # a three-quarter view's landmarks slide over the face as it turns: they steer no weight
+    # (as they steer no 3D point in reconstruct)
+    use = [v.role == "front" or v.profile for v in views]
+    cams = list(rec.cameras)
+    spans = []
+    for v in views:
+        if v.outline is None or not v.profile:
+            spans.append(None)
+            continue
+        ends = [int(np.argmin(np.linalg.norm(v.outline - v.points[i], axis=1))) for i in (10, 152) if i in v.points]
+        spans.append((min(ends), max(ends)) if len(ends) == 2 else None)
+    w = np.zeros(k)
+    for _ in range(iterations):
+        verts = head.identity(w)
+        pts = p0 + np.tensordot(w, at_points, axes=1)
+        nv = vertex_normals(verts, head.mesh.faces)
+        a_rows, b_rows = [], []
+        for v, cam, (rows, pix), used, span in zip(views, cams, targets, use, spans):
+            if not used:
+                continue
+            m = cam.matrix
+            unit = cam.scale * iod0
+            a = np.einsum("ji,kri->rjk", m, at_points[:, rows]).reshape(-1, k)
+            b = (pix - cam.offset - p0[rows] @ m.T).reshape(-1)
+            a_rows.append(a / (unit * IDENTITY_LANDMARK_SIGMA))
+            b_rows.append(b / (unit * IDENTITY_LANDMARK_SIGMA))
+            if span is not None:
+                sa, sb = _silhouette_rows(v, cam, head.mesh.vertices, verts, nv, skin, basis, unit, span)
+                a_rows.append(sa / IDENTITY_SILHOUETTE_SIGMA)
+                b_rows.append(sb / IDENTITY_SILHOUETTE_SIGMA)
+        a = np.vstack(a_rows + [np.sqrt(prior) * np.eye(k)])
+        b = np.concatenate(b_rows + [np.zeros(k)])
+        w = np.linalg.lstsq(a, b, rcond=None)[0]
+        pts = p0 + np.tensordot(w, at_points, axes=1)
+        cams = [_refit_camera(v, pts, rows, pix) for v, (rows, pix) in zip(views, targets)]
+    return w
+
+
 @dataclass
 class FittedHead:
     """The generic head fitted to a person: ``vertices`` (neutral, rigid parts placed),
@@ -511,7 +634,9 @@ def fit_head(head, rec: Reconstruction, method: str = "dffd", keep_expression: b
     person's of that build, not the generic head's; the warp then only takes up what is left."""
     g = head.mesh.vertices
     x = rec.points
-    if identity:
+    if isinstance(identity, np.ndarray):
+        g = head.identity(identity)
+    elif identity:
         from faceanim.face.registration import fit_landmarks
 
         weights = fit_landmarks(x[:478], head)[3][:head.n_identity]
