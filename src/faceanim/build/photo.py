@@ -106,7 +106,9 @@ class PhotoView:
     profile: bool = False
     facing: int = 0
     mediapipe: np.ndarray | None = None  # (478, 3) MediaPipe's own 3D estimate, pixels
-    outline: np.ndarray | None = None  # (N, 2) a profile's silhouette edge, head top to neck (pixels)
+    # (N, 2) pixels: a profile's silhouette edge, head top to neck; a front view's closed head outline
+    # (profile.head_outline), found by fit_identity when it needs it
+    outline: np.ndarray | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -292,8 +294,10 @@ class Reconstruction:
     """Cameras and 3D points from photos, in the generic head's frame and size.
 
     ``points``: (478 + extras, 3) 3D positions (rows 478.. the ``extra`` names in order);
-    ``observed``: per view, (n,) row indices seen in it; ``errors``: per view, (n,) reprojection
-    errors in inter-ocular distances.
+    ``observed``: per view, (n,) row indices seen in it (a profile's points that disagree with the
+    front view left out, :func:`profile_outliers`); ``errors``: per view, (n,) reprojection errors
+    in inter-ocular distances; ``refused``: per view, True for a profile that steers nothing (most
+    of its points disagree with the front view: its camera is fitted on the points that agree).
     """
 
     points: np.ndarray
@@ -301,6 +305,7 @@ class Reconstruction:
     observed: list[np.ndarray]
     errors: list[np.ndarray]
     iod: float
+    refused: list[bool] = field(default_factory=list)  # per view: a profile whose points disagree with the front's
 
 
 def _observations(view: PhotoView, extra_rows: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -313,15 +318,55 @@ def _observations(view: PhotoView, extra_rows: dict) -> tuple[np.ndarray, np.nda
     return np.array(rows, dtype=np.int64), np.array(pix, dtype=np.float64).reshape(-1, 2)
 
 
+# a profile's midline point further than this (inter-ocular distances) from where the front view
+# alone puts it is a misdetection, and a profile with more than PROFILE_REFUSED of its landmarks so
+# far off steers nothing. Measured on profile renders of ICT identities (seeds 1000-1009): a good
+# detection's points lie at most 0.19 from the front-only head (the lips of a person whose mouth is
+# far from the generic head's depth), a chin found on the neck (seed 1008) 0.52-0.97
+PROFILE_OUTLIER = 0.3
+PROFILE_REFUSED = 0.5
+
+
+def profile_outliers(view: PhotoView, rows: np.ndarray, pix: np.ndarray, front: Reconstruction,
+                     iterations: int = 3) -> np.ndarray:
+    """(n,) bool: which of a profile's observations (``rows``, ``pix``) disagree with the front view.
+
+    The profile's camera is fitted to the 3D points rebuilt from the front photo alone (depth from
+    the generic head), again without the points more than three median residuals off; a landmark
+    further than ``PROFILE_OUTLIER`` from its front-view position is out. The head top and back (no
+    front landmark) are never out."""
+    keep = np.ones(len(rows), bool)
+    lm = rows < 478
+    res = np.zeros(len(rows))
+    for _ in range(iterations):
+        if keep.sum() < 3:
+            break
+        cam = fit_profile_camera(front.points[rows[keep]], pix[keep], view.facing, view.size)
+        res = np.linalg.norm(cam.project(front.points[rows]) - pix, axis=1) / (cam.scale * front.iod)
+        keep = ~lm | (res <= max(3.0 * float(np.median(res[lm])), 0.05))
+    return lm & (res > PROFILE_OUTLIER)
+
+
 def reconstruct(views: list[PhotoView], prior: np.ndarray, normals: np.ndarray, iterations: int = 20) -> Reconstruction:
     """Solve each photo's camera and the 3D points together (see the module docstring).
 
     ``prior``: (P, 3) the generic head's points (478 landmarks + extras); ``normals``: their
-    surface normals (a landmark facing away from a camera is occluded there and not used).
+    surface normals (a landmark facing away from a camera is occluded there and not used). A
+    profile's points are first checked against the front view (:func:`profile_outliers`).
     """
     n = len(prior)
     extra_rows = {name: 478 + k for k, name in enumerate(EXTRA_POINTS)}
     obs = [_observations(v, extra_rows) for v in views]
+    refused = [False] * len(views)
+    if views[0].role == "front" and any(v.profile for v in views[1:]):
+        front = reconstruct(views[:1], prior, normals, iterations)
+        for k, v in enumerate(views):
+            if not v.profile:
+                continue
+            rows, pix = obs[k]
+            out = profile_outliers(v, rows, pix, front)
+            refused[k] = bool(out.sum() > PROFILE_REFUSED * (rows < 478).sum())
+            obs[k] = (rows[~out], pix[~out])
     cams = [initial_camera(v, prior) for v in views]
     # a three-quarter view sees only one side: drop the landmarks facing away from its camera
     keep = []
@@ -340,9 +385,9 @@ def reconstruct(views: list[PhotoView], prior: np.ndarray, normals: np.ndarray, 
         lam = PRIOR_WEIGHT * np.mean([c.scale for c in cams]) ** 2
         a = np.repeat(lam * np.eye(3)[None], n, axis=0)
         b = lam * base.copy()
-        for v, cam, (rows, pix) in zip(views, cams, obs):
+        for v, cam, (rows, pix), off in zip(views, cams, obs, refused):
             m = cam.matrix  # (2, 3)
-            wv = THREE_QUARTER_WEIGHT if v.role == "side" and not v.profile else 1.0
+            wv = THREE_QUARTER_WEIGHT if (v.role == "side" and not v.profile) or off else 1.0
             a[rows] += wv * (m.T @ m)
             b[rows] += wv * ((pix - cam.offset) @ m)
         x = np.linalg.solve(a, b[..., None])[..., 0]
@@ -355,7 +400,7 @@ def reconstruct(views: list[PhotoView], prior: np.ndarray, normals: np.ndarray, 
     iod = float(np.linalg.norm(x[OUTER_EYE_CORNERS[0]] - x[OUTER_EYE_CORNERS[1]]))
     errors = [np.linalg.norm(cam.project(x[rows]) - pix, axis=1) / (cam.scale * iod)
               for cam, (rows, pix) in zip(cams, obs)]
-    return Reconstruction(x, cams, [rows for rows, _ in obs], errors, iod)
+    return Reconstruction(x, cams, [rows for rows, _ in obs], errors, iod, refused)
 
 
 def check_views(views: list[PhotoView], rec: Reconstruction) -> None:
@@ -509,19 +554,89 @@ def _silhouette_rows(view: PhotoView, cam: ViewCamera, neutral: np.ndarray, vert
     return a / unit, b / unit
 
 
+# the front view's outline term: the silhouette between the eyes' height and a little below the
+# menton (cheeks, jaw, the neck's sides; the skull above is hair in a photo), points matched to an
+# ear left out; a head vertex makes the outline where its projected normal is within
+# OUTLINE_COS of the silhouette's
+IDENTITY_OUTLINE_SIGMA = 0.01
+OUTLINE_BELOW_CHIN = 0.3  # IOD below the menton
+OUTLINE_COS = 0.7
+
+
+@lru_cache(maxsize=2)
+def ear_vertices(head) -> np.ndarray:
+    """Skin vertices of the generic head's ears: lateral of the face's widest points (landmarks
+    234, 454) by 0.05 IOD, behind them, between the subnasale's height less 0.15 IOD and the eyes'
+    height plus 0.2 IOD (a front silhouette there is the ear's, which says little of the face)."""
+    v = head.mesh.vertices
+    skin = head.parts["skin"]
+    lm = head.landmarks()
+    iod = float(np.linalg.norm(lm[OUTER_EYE_CORNERS[0]] - lm[OUTER_EYE_CORNERS[1]]))
+    wide = np.abs(lm[[234, 454], 0]).mean() + 0.05 * iod
+    lo, hi = lm[2, 1] - 0.15 * iod, lm[list(OUTER_EYE_CORNERS), 1].mean() + 0.2 * iod
+    sel = (np.abs(v[skin, 0]) > wide) & (v[skin, 1] > lo) & (v[skin, 1] < hi) & (v[skin, 2] < lm[[234, 454], 2].mean())
+    out = skin[sel]
+    out.setflags(write=False)
+    return out
+
+
+def _outline_rows(view: PhotoView, cam: ViewCamera, neutral: np.ndarray, vertices: np.ndarray,
+                  normals: np.ndarray, skin: np.ndarray, ears: np.ndarray, basis: np.ndarray, unit: float):
+    """Linear rows of the front view's outline term: for each point ``c`` of the photo's head
+    outline between the eyes' height and ``OUTLINE_BELOW_CHIN`` below the menton, the nearest
+    head vertex ``v`` on the outline (normal perpendicular to the view, its projection facing the
+    same way as the silhouette's normal ``n``), and ``n . (P v(w) + o - c)``."""
+    from scipy.spatial import cKDTree
+
+    c = view.outline
+    tangent = np.roll(c, -1, axis=0) - np.roll(c, 1, axis=0)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
+    nrm = np.c_[-tangent[:, 1], tangent[:, 0]]  # outward (head_outline runs counter-clockwise)
+    eye_y = np.mean([view.points[i][1] for i in OUTER_EYE_CORNERS])
+    low = view.points[152][1] + OUTLINE_BELOW_CHIN * unit
+    band = (c[:, 1] > eye_y) & (c[:, 1] < low)
+    c, nrm = c[band], nrm[band]
+    m = cam.matrix
+    rim = skin[np.abs(normals[skin] @ cam.direction) < RIM_COS]
+    n2 = normals[rim] @ m.T
+    n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-12)
+    proj = cam.project(vertices[rim])
+    tree = cKDTree(proj)
+    near = tree.query_ball_point(c, SILHOUETTE_REACH * unit)
+    idx, keep = np.zeros(len(c), np.int64), np.zeros(len(c), bool)
+    for i, cand in enumerate(near):
+        if not cand:
+            continue
+        cand = np.asarray(cand)
+        cand = cand[n2[cand] @ nrm[i] > OUTLINE_COS]
+        if not len(cand):
+            continue
+        j = cand[np.argmin(np.linalg.norm(proj[cand] - c[i], axis=1))]
+        idx[i], keep[i] = rim[j], True
+    keep &= ~np.isin(idx, ears)
+    c, nrm, idx = c[keep], nrm[keep], idx[keep]
+    a = np.einsum("nj,ji,kni->nk", nrm, m, basis[:, idx])
+    b = np.einsum("nj,nj->n", nrm, c - cam.offset - neutral[idx] @ m.T)
+    return a / unit, b / unit
+
+
 def fit_identity(head, views: list[PhotoView], rec: Reconstruction, iterations: int = IDENTITY_ITERATIONS,
-                 prior: float = 100.0) -> np.ndarray:
+                 prior: float = 100.0, outline: float = 4.0) -> np.ndarray:
     """The identity weights (K,) of the person the photos show, fitted to the photos themselves.
 
     Each view's camera (from :func:`reconstruct`) sees the morphable head ``v(w) = neutral + B w``;
     the weights minimise, over the views, the 2D distance from each detected landmark to where
     the camera projects the head's own (``IDENTITY_LANDMARK_SIGMA``), plus on a true profile the
     distance along the silhouette's normal from the silhouette edge to the head's outline there
-    (``IDENTITY_SILHOUETTE_SIGMA``), plus ``prior |w|^2``. Correspondences (which vertex makes the
+    (``IDENTITY_SILHOUETTE_SIGMA``), plus, weighted by ``outline``, the same along the front view's
+    head outline from the eyes down past the chin (:func:`_outline_rows`, ``IDENTITY_OUTLINE_SIGMA``),
+    plus ``prior |w|^2``. Correspondences (which vertex makes the
     outline) are found again on each iteration and the cameras are refitted to the new head's
     points; within an iteration the problem is linear least squares. ``prior`` 100 was the best of
     1, 10, 100 on ICT identities sampled with seeds 1000-1009 (tuning set: own/other median 0.71,
-    0.66, 0.62; the landmark-only identity of :func:`fit_head` 0.81). Not yet used by
+    0.66, 0.62; the landmark-only identity of :func:`fit_head` 0.81); with the profile guard of
+    :func:`reconstruct` 0.67 (seed 1008's chin found on the neck no longer makes a head so wrong
+    that everybody else's looks close), ``outline`` 0.25, 1, 4, 16: 0.66, 0.63, 0.62, 0.65. Not yet used by
     :func:`head_from_photos`: a detected landmark on a render sits 0.015 IOD from the head's own even
     for the true weights, so landmarks say little about the identity (docs/photos.md)."""
     from faceanim.face.mesh import vertex_normals
@@ -531,18 +646,30 @@ def fit_identity(head, views: list[PhotoView], rec: Reconstruction, iterations: 
     p0, _ = prior_points(head)
     skin = head.parts["skin"]
     iod0 = float(np.linalg.norm(p0[OUTER_EYE_CORNERS[0]] - p0[OUTER_EYE_CORNERS[1]]))
-    targets = [_view_targets(v) for v in views]
+    # the points the reconstruction kept (a profile's misdetections left out)
+    targets = []
+    for v, kept in zip(views, rec.observed):
+        rows, pix = _view_targets(v)
+        ok = np.isin(rows, kept)
+        targets.append((rows[ok], pix[ok]))
     # a three-quarter view's landmarks slide over the face as it turns: they steer no weight
-    # (as they steer no 3D point in reconstruct)
-    use = [v.role == "front" or v.profile for v in views]
+    # (as they steer no 3D point in reconstruct); nor does a refused profile
+    refused = rec.refused or [False] * len(views)
+    use = [(v.role == "front" or v.profile) and not off for v, off in zip(views, refused)]
     cams = list(rec.cameras)
     spans = []
-    for v in views:
+    for v, (rows, _) in zip(views, targets):
         if v.outline is None or not v.profile:
             spans.append(None)
             continue
-        ends = [int(np.argmin(np.linalg.norm(v.outline - v.points[i], axis=1))) for i in (10, 152) if i in v.points]
-        spans.append((min(ends), max(ends)) if len(ends) == 2 else None)
+        # the silhouette between the highest and the lowest midline point kept (forehead 10 to menton 152)
+        ends = [int(np.argmin(np.linalg.norm(v.outline - v.points[int(i)], axis=1))) for i in rows if i < 478]
+        spans.append((min(ends), max(ends)) if len(ends) >= 2 else None)
+    if outline > 0 and views[0].role == "front" and views[0].outline is None:
+        from faceanim.build.profile import head_outline
+
+        views[0].outline = head_outline(views[0].image)
+    ears = ear_vertices(head)
     w = np.zeros(k)
     for _ in range(iterations):
         verts = head.identity(w)
@@ -562,6 +689,10 @@ def fit_identity(head, views: list[PhotoView], rec: Reconstruction, iterations: 
                 sa, sb = _silhouette_rows(v, cam, head.mesh.vertices, verts, nv, skin, basis, unit, span)
                 a_rows.append(sa / IDENTITY_SILHOUETTE_SIGMA)
                 b_rows.append(sb / IDENTITY_SILHOUETTE_SIGMA)
+            if outline > 0 and v.role == "front" and v.outline is not None:
+                oa, ob = _outline_rows(v, cam, head.mesh.vertices, verts, nv, skin, ears, basis, unit)
+                a_rows.append(np.sqrt(outline) * oa / IDENTITY_OUTLINE_SIGMA)
+                b_rows.append(np.sqrt(outline) * ob / IDENTITY_OUTLINE_SIGMA)
         a = np.vstack(a_rows + [np.sqrt(prior) * np.eye(k)])
         b = np.concatenate(b_rows + [np.zeros(k)])
         w = np.linalg.lstsq(a, b, rcond=None)[0]
