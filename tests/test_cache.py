@@ -65,13 +65,16 @@ def test_the_default_faces_arkit_shapes_from_the_cache_equal_the_computed(folder
     calls = []
     real = arkit._arkit_shapes
 
-    def counted(f, eyes):
-        calls.append(1)
-        return real(f, eyes)
+    def counted(f, eyes, style):
+        calls.append(style)
+        return real(f, eyes, style)
 
     monkeypatch.setattr(arkit, "_arkit_shapes", counted)
     made, why = arkit.arkit_shapes(face)
     again, why2 = arkit.arkit_shapes(face)
-    assert len(calls) == 1 and why == why2 and list(again) == list(made)
+    assert calls == ["realistic"] and why == why2 and list(again) == list(made)
     for name in made:
         np.testing.assert_array_equal(again[name], made[name])
+    stylised, _ = arkit.arkit_shapes(face, style="stylised")  # a style of its own in the cache
+    assert calls == ["realistic", "stylised"]
+    assert not np.array_equal(stylised["eyeBlinkLeft"], made["eyeBlinkLeft"])

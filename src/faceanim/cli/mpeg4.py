@@ -70,18 +70,21 @@ def _say_phones(args, voice, tmp: Path) -> tuple[list, Path]:
 
 def _say_animation(args, face, phones, wav):
     """``say`` as an :class:`~faceanim.export.Animation`: ARKit curves of the lip sync
-    (:mod:`faceanim.drivers.speech.lipsync`, with ``--expression`` held), Rhubarb cues of the phones,
+    (:mod:`faceanim.drivers.speech.lipsync`) with the brows and blinks of the voice's prosody
+    (:mod:`faceanim.drivers.speech.prosody`) and ``--expression`` held, Rhubarb cues of the phones,
     MPEG-4's visemes as FAPs (Lee et al.; made only for a .fap), the sound (written beside a .glb
     or cue file, or the recording named)."""
     import numpy as np
 
     from faceanim.drivers.cues import phone_cues
     from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
+    from faceanim.drivers.speech.prosody import with_prosody
     from faceanim.export import Animation
+    from faceanim.io.audio import read_audio
     from faceanim.standards.arkit import APPLE_NAMES
 
     names = list(APPLE_NAMES)  # Live Link Face's order
-    curves = lipsync_curves(phones, names, args.fps)
+    curves, head = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps)
     if args.expression:
         curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),
                          0.0, 1.0)
@@ -99,8 +102,8 @@ def _say_animation(args, face, phones, wav):
         return speech_stream(0.0, phones, args.fps, extra, name=Path(args.output).stem)
 
     out = Path(args.output)
-    return Animation(args.fps, arkit=curves, face=face, fap=fap_stream, cues=phone_cues(phones), sound=wav,
-                     sound_name=str(Path(args.audio).resolve()) if args.audio else "", name=out.stem,
+    return Animation(args.fps, arkit=curves, head=head, face=face, fap=fap_stream, cues=phone_cues(phones),
+                     sound=wav, sound_name=str(Path(args.audio).resolve()) if args.audio else "", name=out.stem,
                      quantize=args.compact, size=args.size, view=face.view() if face is not None else None)
 
 
@@ -110,13 +113,14 @@ def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
     import numpy as np
 
     from faceanim.drivers.speech.lipsync import expression_curves, lipsync_curves
+    from faceanim.drivers.speech.prosody import with_prosody
     from faceanim.export import sound_beside
     from faceanim.io.audio import read_audio
     from faceanim.io.gltf import sound_companion
     from faceanim.standards.arkit import APPLE_NAMES
 
     names = list(APPLE_NAMES)
-    curves = lipsync_curves(phones, names, args.fps)
+    curves, _ = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps)
     if args.expression:
         curves = np.clip(curves + expression_curves(args.expression, names, len(curves), args.fps, args.intensity),
                          0.0, 1.0)

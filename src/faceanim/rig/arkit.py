@@ -216,6 +216,27 @@ def eye_opening(face: Face, slit: str, eyes: dict, vertices: np.ndarray | None =
     return res if res.height.any() else None
 
 
+def _lid_frame(face: Face, op: EyeOpening, eyes: dict, reach: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per vertex of ``face``, for the eye opening ``op``: its height down the face (face frame),
+    the upper and lower margins' heights in its column (interpolated across the eye), and whether
+    it is a lid's: within the open columns, less than ``reach`` behind the upper margin (not the
+    back of the head behind the eye), not an eye piece."""
+    fr = face.frame
+    open_ = op.height > 0
+    x = op.x[open_]
+    local = fr.to_local(face.mesh.vertices)
+    xv = local[:, 0]
+    upper = np.interp(xv, x, fr.to_local(op.upper[open_])[:, 1])
+    lower = np.interp(xv, x, fr.to_local(op.lower[open_])[:, 1])
+    depth = np.interp(xv, x, fr.to_local(op.upper[open_])[:, 2])
+    near = (xv > x.min()) & (xv < x.max()) & (local[:, 2] > depth - reach)
+    for part in (eyes or {}).values():
+        if part is not None:
+            near[part[0]] = False
+    return local[:, 1], upper, lower, near
+
+
 def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict, reach: tuple | None = None) -> np.ndarray:
     """The correction that makes a carried blink close the eye: ICT's lids travel ICT's eye
     opening, which on another face leaves a slit (40% of it on the default face; half an anime
@@ -243,23 +264,11 @@ def _lid_closure(face: Face, blink: np.ndarray, slit: str, eyes: dict, reach: tu
         return np.zeros_like(blink)
     open_ = op.height > 0
     gap = np.where(open_, left.height, 0.0)  # how far the lids still part, down the face
-    up_y, lo_y = (fr.to_local(m[open_])[:, 1] for m in (op.upper, op.lower))
-    x_open = op.x[open_]
     width = float(op.x[-1] - op.x[0])
-    local = fr.to_local(mesh.vertices)
-    xv, yv = local[:, 0], local[:, 1]
-    # per vertex: its column's gap (0 past the corners), margins and middle, interpolated across
-    g = np.interp(xv, op.x, gap, left=0.0, right=0.0)
-    upper_margin = np.interp(xv, x_open, up_y)
-    lower_margin = np.interp(xv, x_open, lo_y)
+    yv, upper_margin, lower_margin, near = _lid_frame(face, op, eyes, 0.5 * width)
+    # per vertex: its column's gap (0 past the corners), interpolated across
+    g = np.interp(face.frame.to_local(mesh.vertices)[:, 0], op.x, gap, left=0.0, right=0.0)
     middle = 0.5 * (upper_margin + lower_margin)
-    near = (xv > x_open.min()) & (xv < x_open.max())
-    # only what is near the eye's surface (not the back of the head behind it), not the eyes
-    depth = np.interp(xv, x_open, fr.to_local(op.upper[open_])[:, 2])
-    near &= local[:, 2] > depth - 0.5 * width
-    for part in (eyes or {}).values():
-        if part is not None:
-            near[part[0]] = False
     if reach is None:
         tall = max(LID_REACH * width, LID_STRETCH * float(gap.max()))
         reach = (tall, tall / 3)
@@ -290,26 +299,16 @@ def _lid_sheet(face: Face, blink: np.ndarray, slit: str, eyes: dict) -> np.ndarr
     op = eye_opening(face, slit, eyes)
     if op is None:
         return blink
-    fr = face.frame
     open_ = op.height > 0
-    up_y, lo_y = (fr.to_local(m[open_])[:, 1] for m in (op.upper, op.lower))
-    x = op.x[open_]
-    width, tallest = float(x.max() - x.min()), float((up_y - lo_y).max())
-    local = fr.to_local(face.mesh.vertices)
-    xv, yv = local[:, 0], local[:, 1]
-    upper, lower = np.interp(xv, x, up_y), np.interp(xv, x, lo_y)
+    yv, upper, lower, near = _lid_frame(face, op, eyes, 0.5 * float(np.ptp(op.x[open_])))
+    tallest = float(np.max(face.frame.to_local(op.upper[open_])[:, 1] - face.frame.to_local(op.lower[open_])[:, 1]))
     meet = lower + (1.0 - LID_MEET) * (upper - lower)
-    depth = np.interp(xv, x, fr.to_local(op.upper[open_])[:, 2])
-    near = (xv > x.min()) & (xv < x.max()) & (local[:, 2] > depth - 0.5 * width)  # not the back of the head
-    for part in (eyes or {}).values():
-        if part is not None:
-            near[part[0]] = False
     middle = 0.5 * (upper + lower)
     up, lo = near & (yv > middle), near & (yv <= middle)
     fade_up = np.where(yv <= upper, 1.0, smoothstep(1.0 - (yv - upper) / (LID_SHEET * tallest)))
     fade_lo = np.where(yv >= lower, 1.0, smoothstep(1.0 - (lower - yv) / (LID_SHEET_LOWER * tallest)))
     target = np.where(up, (meet - upper) * fade_up, 0.0) + np.where(lo, (meet - lower) * fade_lo, 0.0)
-    down = fr.rotation[1]
+    down = face.frame.rotation[1]
     return blink + ((target - blink @ down) * (up | lo))[:, None] * down
 
 
