@@ -15,6 +15,9 @@
    the head from the person's own renders, and against the heads from everybody else's: the
    ratio own/other is how much closer a head from your photos is to you than to anybody else.
 
+   ``--seeds 1000-1009`` runs section 3 on those ICT seeds alone (the tuning set); ``--shading W``
+   adds the shading experiment of ``scripts/photo_shading.py`` (not used by faceanim photo).
+
 Usage: ``python scripts/eval_photo_head.py ../shared/data [--poses 0,1,2] [--sheet out.png] [--people 4]``
 """
 
@@ -170,7 +173,7 @@ def _views(name: str, mesh, side_yaw: float, cache: Path | None):
 
 
 def people(data: Path, seeds, side_yaw: float, scan: bool = True, cache: Path | None = None,
-           dense_only: bool = False) -> None:
+           shading: float = 0.0, shading_options: dict | None = None, dense_only: bool = False) -> None:
     """Section 3 of the module docstring."""
     head = generic_head()
     prior, normals = prior_points(head)
@@ -182,6 +185,11 @@ def people(data: Path, seeds, side_yaw: float, scan: bool = True, cache: Path | 
         views = _views(name, mesh, side_yaw, cache)
         rec = reconstruct(views, prior, normals)
         w = fit_identity(head, views, rec)
+        if shading > 0:
+            sys.path.insert(0, str(ROOT / "scripts"))
+            from photo_shading import fit_identity_shading  # the experiment: not in faceanim photo
+
+            w = fit_identity_shading(head, views, rec, w, weight=shading, **(shading_options or {}))
         if dense_only:
             dense.append(head.identity(w))
             continue
@@ -227,7 +235,7 @@ def people(data: Path, seeds, side_yaw: float, scan: bool = True, cache: Path | 
     print(f"| median | | | | | | {np.median(ratios[True]):.2f} | {np.median(ratios[False]):.2f} |")
     print(f"own photo head / generic head (identity): median {np.median(gen_ratio):.2f}; identity from the scan's "
           f"own 3D landmarks / generic head: median {np.median(bounds):.2f}")
-    what = "front landmarks + profile silhouette + front outline"
+    what = "front landmarks + profile silhouette + front outline" + (f" + shading (weight {shading:g})" if shading else "")
     for key, title in (("dense", f"Dense identity (fit_identity: {what}; the morphable head alone, no warp)"),
                        ("photo", "The same weights warped onto the points (fit_head(identity=w): what faceanim "
                                  "photo makes)")):
@@ -303,14 +311,21 @@ def main(argv=None) -> None:
     p.add_argument("--seeds", help="section 3 on these ICT seeds instead (e.g. 1000-1009, the tuning set), "
                    "without FaceWarehouse")
     p.add_argument("--cache", type=Path, help="keep each person's renders and detected points here")
+    p.add_argument("--shading", type=float, default=0.0, help="section 3: refine fit_identity's weights by the "
+                   "shading term with this weight (EXPERIMENT, scripts/photo_shading.py; not in faceanim photo)")
+    p.add_argument("--shading-modes", type=int, default=30, help="leading identity modes the shading term moves")
+    p.add_argument("--shading-damping", type=float, default=0.0)
+    p.add_argument("--shading-iterations", type=int, default=3, help="rounds of the shading fit")
     p.add_argument("--dense-only", action="store_true", help="section 3: only fit_identity's heads")
     args = p.parse_args(argv)
+    opts = dict(modes=args.shading_modes, damping=args.shading_damping, iterations=args.shading_iterations)
     if args.seeds:
         lo, _, hi = args.seeds.partition("-")
-        people(args.data, range(int(lo), int(hi or lo) + 1), args.side_yaw, scan=False, cache=args.cache, dense_only=args.dense_only)
+        people(args.data, range(int(lo), int(hi or lo) + 1), args.side_yaw, scan=False, cache=args.cache,
+               shading=args.shading, shading_options=opts, dense_only=args.dense_only)
     elif args.people:
-        people(args.data, range(300, 300 + args.people), args.side_yaw, cache=args.cache,
-               dense_only=args.dense_only)
+        people(args.data, range(300, 300 + args.people), args.side_yaw, cache=args.cache, shading=args.shading,
+               shading_options=opts, dense_only=args.dense_only)
     if not args.skip_truth:
         known_truth(args.data, [int(k) for k in args.poses.split(",")], args.side_yaw)
     if not args.skip_photos:
