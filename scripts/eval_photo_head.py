@@ -15,6 +15,9 @@
    the head from the person's own renders, and against the heads from everybody else's: the
    ratio own/other is how much closer a head from your photos is to you than to anybody else.
 
+   ``--seeds 1000-1009`` runs section 3 on those ICT seeds alone (the tuning set); ``--shading W``
+   adds the shading experiment of ``scripts/photo_shading.py`` (not used by faceanim photo).
+
 Usage: ``python scripts/eval_photo_head.py ../shared/data [--poses 0,1,2] [--sheet out.png] [--people 4]``
 """
 
@@ -32,6 +35,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from faceanim.build.photo import (
     fit_head,
+    fit_identity,
     load_views,
     prior_points,
     reconstruct,
@@ -134,38 +138,81 @@ def known_truth(data: Path, poses: list[int], side_yaw: float) -> None:
           + " |")
 
 
-def people(data: Path, count: int, side_yaw: float) -> None:
-    """Section 3 of the module docstring."""
+def _people_truths(data: Path, seeds, scan: bool):
     from faceanim.face.mesh import Mesh
 
     head = generic_head()
-    prior, normals = prior_points(head)
     truths = []
-    scan = data / "facewarehouse-tester1" / "pose_0.obj"
-    if scan.is_file():
-        truths.append(("FaceWarehouse 1", load_mesh(scan)))
-    ict = data / "ict-facekit"
-    modes = np.load(ict / "identity_modes.npz")["modes"][:, :24591].astype(np.float64) * 0.01
+    path = data / "facewarehouse-tester1" / "pose_0.obj"
+    if scan and path.is_file():
+        truths.append(("FaceWarehouse 1", load_mesh(path)))
+    modes = np.load(data / "ict-facekit" / "identity_modes.npz")["modes"][:, :24591].astype(np.float64) * 0.01
     skin_faces = head.mesh.faces[np.isin(head.mesh.faces, head.parts["skin"]).all(axis=1)]
-    for seed in range(300, 300 + count):
+    for seed in seeds:
         w = np.random.default_rng(seed).standard_normal(len(modes))
         v = head.mesh.vertices + np.einsum("k,kvd->vd", w, modes)
         truths.append((f"ICT seed {seed}", Mesh(v, skin_faces, name=f"ict{seed}")))
-    faces, built = [], {True: [], False: []}
+    return truths
+
+
+def _views(name: str, mesh, side_yaw: float, cache: Path | None):
+    """The person's front and side renders with their detected points (cached in ``cache``: the
+    renders and the detection are the same on every run)."""
+    import pickle
+
+    f = None
+    if cache is not None:
+        cache.mkdir(parents=True, exist_ok=True)
+        f = cache / f"{name.replace(' ', '_')}_{side_yaw:g}.pkl"
+        if f.is_file():
+            return pickle.loads(f.read_bytes())
+    views = load_views(("front", render(mesh, 0.0)), [("side", render(mesh, side_yaw))])
+    if f is not None:
+        f.write_bytes(pickle.dumps(views))
+    return views
+
+
+def people(data: Path, seeds, side_yaw: float, scan: bool = True, cache: Path | None = None,
+           shading: float = 0.0, shading_options: dict | None = None, dense_only: bool = False) -> None:
+    """Section 3 of the module docstring."""
+    head = generic_head()
+    prior, normals = prior_points(head)
+    truths = _people_truths(data, seeds, scan)
+    faces, built, dense, photo_dense = [], {True: [], False: []}, [], []
     for name, mesh in truths:
         face = Face(mesh, landmarks_478(mesh, detect_landmarks(mesh)))
         faces.append(face)
-        views = load_views(("front", render(mesh, 0.0)), [("side", render(mesh, side_yaw))])
+        views = _views(name, mesh, side_yaw, cache)
         rec = reconstruct(views, prior, normals)
+        w = fit_identity(head, views, rec)
+        if shading > 0:
+            sys.path.insert(0, str(ROOT / "scripts"))
+            from photo_shading import fit_identity_shading  # the experiment: not in faceanim photo
+
+            w = fit_identity_shading(head, views, rec, w, weight=shading, **(shading_options or {}))
+        if dense_only:
+            dense.append(head.identity(w))
+            continue
+        dense.append(head.identity(w))
+        # what faceanim photo makes with these weights: the morphable head warped onto the points
+        photo_dense.append(fit_head(head, rec, "dffd", keep_expression=True, identity=w).vertices)
         for ident in (True, False):
             fh = fit_head(head, rec, "dffd", keep_expression=True, identity=ident)
             built[ident].append(fh.vertices)
+    if dense_only:
+        rows = []
+        for i, ((name, _), face) in enumerate(zip(truths, faces)):
+            errs = [surface_error(face, v, head, head.landmarks(v))[0] for v in dense]
+            rows.append((name, errs[i], float(np.mean([e for j, e in enumerate(errs) if j != i]))))
+            print(f"| {name} | {rows[-1][1]:.4f} | {rows[-1][2]:.4f} | {rows[-1][1] / rows[-1][2]:.2f} |", flush=True)
+        print(f"| median | | | {np.median([o / t for _, o, t in rows]):.2f} |")
+        return
     print(f"\nOwn or another person's head: surface error over the face (IOD), front + side {side_yaw:g} renders")
     print("| person | generic head | identity from the scan's 3D landmarks | own photos, identity | own, no identity "
           "| others', identity (mean) | own/other, identity | own/other, no identity |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     ratios = {True: [], False: []}
-    gen_ratio, bounds = [], []
+    gen_ratio, bounds, dense_rows = [], [], {"dense": [], "photo": []}
     for i, ((name, _), face) in enumerate(zip(truths, faces)):
         generic, _ = surface_error(face, head.mesh.vertices, head, head.landmarks())
         # the bound of a landmark-driven identity: fitted to the scan's own detected 3D landmarks
@@ -180,11 +227,24 @@ def people(data: Path, count: int, side_yaw: float) -> None:
             row[ident] = (own, other)
             ratios[ident].append(own / other)
         gen_ratio.append(row[True][0] / generic)
+        for key, heads in (("dense", dense), ("photo", photo_dense)):
+            errs = [surface_error(face, v, head, head.landmarks(v))[0] for v in heads]
+            dense_rows[key].append((name, errs[i], float(np.mean([e for j, e in enumerate(errs) if j != i]))))
         print(f"| {name} | {generic:.4f} | {bound:.4f} | {row[True][0]:.4f} | {row[False][0]:.4f} | {row[True][1]:.4f} | "
               f"{row[True][0] / row[True][1]:.2f} | {row[False][0] / row[False][1]:.2f} |", flush=True)
     print(f"| median | | | | | | {np.median(ratios[True]):.2f} | {np.median(ratios[False]):.2f} |")
     print(f"own photo head / generic head (identity): median {np.median(gen_ratio):.2f}; identity from the scan's "
           f"own 3D landmarks / generic head: median {np.median(bounds):.2f}")
+    what = "front landmarks + profile silhouette + front outline" + (f" + shading (weight {shading:g})" if shading else "")
+    for key, title in (("dense", f"Dense identity (fit_identity: {what}; the morphable head alone, no warp)"),
+                       ("photo", "The same weights warped onto the points (fit_head(identity=w): what faceanim "
+                                 "photo makes)")):
+        print(f"\n{title}")
+        print("| person | own | others' (mean) | own/other |")
+        print("|---|---:|---:|---:|")
+        for name, own, other in dense_rows[key]:
+            print(f"| {name} | {own:.4f} | {other:.4f} | {own / other:.2f} |")
+        print(f"| median | | | {np.median([o / t for _, o, t in dense_rows[key]]):.2f} |")
 
 
 def real_photos(data: Path, sheet: Path | None) -> None:
@@ -246,10 +306,26 @@ def main(argv=None) -> None:
     p.add_argument("--sheet", type=Path, help="write the real-photo contact sheet here (PNG)")
     p.add_argument("--skip-truth", action="store_true")
     p.add_argument("--skip-photos", action="store_true")
-    p.add_argument("--people", type=int, default=0, help="section 3 with this many sampled ICT identities")
+    p.add_argument("--people", type=int, default=0, help="section 3 with this many sampled ICT identities "
+                   "(seeds 300..., held out) and FaceWarehouse tester 1")
+    p.add_argument("--seeds", help="section 3 on these ICT seeds instead (e.g. 1000-1009, the tuning set), "
+                   "without FaceWarehouse")
+    p.add_argument("--cache", type=Path, help="keep each person's renders and detected points here")
+    p.add_argument("--shading", type=float, default=0.0, help="section 3: refine fit_identity's weights by the "
+                   "shading term with this weight (EXPERIMENT, scripts/photo_shading.py; not in faceanim photo)")
+    p.add_argument("--shading-modes", type=int, default=30, help="leading identity modes the shading term moves")
+    p.add_argument("--shading-damping", type=float, default=0.0)
+    p.add_argument("--shading-iterations", type=int, default=3, help="rounds of the shading fit")
+    p.add_argument("--dense-only", action="store_true", help="section 3: only fit_identity's heads")
     args = p.parse_args(argv)
-    if args.people:
-        people(args.data, args.people, args.side_yaw)
+    opts = dict(modes=args.shading_modes, damping=args.shading_damping, iterations=args.shading_iterations)
+    if args.seeds:
+        lo, _, hi = args.seeds.partition("-")
+        people(args.data, range(int(lo), int(hi or lo) + 1), args.side_yaw, scan=False, cache=args.cache,
+               shading=args.shading, shading_options=opts, dense_only=args.dense_only)
+    elif args.people:
+        people(args.data, range(300, 300 + args.people), args.side_yaw, cache=args.cache, shading=args.shading,
+               shading_options=opts, dense_only=args.dense_only)
     if not args.skip_truth:
         known_truth(args.data, [int(k) for k in args.poses.split(",")], args.side_yaw)
     if not args.skip_photos:

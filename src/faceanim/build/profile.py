@@ -627,6 +627,20 @@ def _face_detection(img: np.ndarray) -> dict | None:
     return None
 
 
+def head_outline(image) -> np.ndarray:
+    """(N, 2) the closed outline of the person's silhouette around the head, in pixels of
+    ``image`` (x right, y down), counter-clockwise on the screen (the outward normal of the step
+    from ``p[i]`` to ``p[i+1]`` is its tangent ``t`` turned to (-t_y, t_x)), every half pixel of the traced
+    silhouette. For a front photo: the jaw, cheeks, ears and skull (or hair) against the background."""
+    img = _as_image(image)
+    mask, scale, x0, y0 = _silhouette(img)
+    c = _outline(mask, 1.0)
+    c = np.stack([x0 + (c[:, 0] + 0.5) / scale, y0 + (c[:, 1] + 0.5) / scale], axis=1)
+    x, y = c[:, 0], c[:, 1]
+    area = 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))  # > 0: clockwise on the screen (y down)
+    return np.ascontiguousarray(c[::-1] if area > 0 else c)
+
+
 # ----------------------------------------------------------------------------- the profile
 def profile_points(image) -> ProfilePoints:
     """Feature points of a head photographed in true profile (turned about 90 degrees).
