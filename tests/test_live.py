@@ -350,11 +350,14 @@ def test_live_command_stops_on_ctrl_c_with_the_csv_whole_and_survives_a_gone_rec
     p = subprocess.Popen([sys.executable, "-m", "faceanim", "live", "--video", str(CLIPS / "d10.mp4"), "--to",
                           f"vmc://127.0.0.1:{port}", "--to", f"csv:{csv}"], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True)
-    time.sleep(8.0)
+    first = p.stderr.readline()  # the run's own line: the sinks are open, the clip about to play
+    assert first.startswith("faceanim live: "), first
+    time.sleep(5.0)  # a third of the clip: Ctrl-C comes while it plays, however slow the start was
     p.send_signal(signal.SIGINT)
     out, err = p.communicate(timeout=60)
+    err = first + err
     assert p.returncode == 0, err
-    assert out.startswith("stopped: ")
+    assert out.startswith("stopped: "), out
     take = read_arkit_csv(csv)
     processed = int(out.split("stopped: ")[1].split(" frames")[0])
     assert processed > 30 and processed <= take.n_samples <= 15 * 30 + 1  # the clip's span, every frame on it
