@@ -186,10 +186,9 @@ def people(data: Path, seeds, side_yaw: float, scan: bool = True, cache: Path | 
         rec = reconstruct(views, prior, normals)
         w = fit_identity(head, views, rec)
         if shading > 0:
-            sys.path.insert(0, str(ROOT / "scripts"))
-            from photo_shading import fit_identity_shading  # the experiment: not in faceanim photo
+            from faceanim.build.shading import fit_identity_shading
 
-            w = fit_identity_shading(head, views, rec, w, weight=shading, **(shading_options or {}))
+            w = fit_identity_shading(head, views, rec, w, weight=shading, **(shading_options or {})).weights
         if dense_only:
             dense.append(head.identity(w))
             continue
@@ -247,6 +246,82 @@ def people(data: Path, seeds, side_yaw: float, scan: bool = True, cache: Path | 
         print(f"| median | | | {np.median([o / t for _, o, t in dense_rows[key]]):.2f} |")
 
 
+def _true_cameras(mesh, side_yaw: float):
+    from faceanim.build.texture import view_camera
+
+    cams = []
+    for yaw in (0.0, side_yaw):
+        with OffscreenRenderer(mesh, size=(SIZE, SIZE), yaw=yaw, parallel=True, background=(0.5, 0.5, 0.5)) as r:
+            cams.append(view_camera(r))
+    return cams
+
+
+def alignment(head, views, rec, fitted, truth_lm, true_cams) -> list[float]:
+    """Per view, the median distance (IOD) in the photo between where the baked texture puts each
+    of the 468 surface landmarks (the head's landmark through the camera the texture is taken
+    with, :func:`faceanim.build.photo.bake_cameras`) and where the true head's landmark is in the
+    render (its true camera): how far the texture's features sit from the photo's."""
+    from faceanim.build.photo import bake_cameras
+    from faceanim.face.mesh import vertex_normals
+
+    cams = bake_cameras(head, views, rec, fitted)
+    ours = head.landmarks(fitted.expressed)[:468]
+    iod = float(np.linalg.norm(truth_lm[33] - truth_lm[263]))
+    out = []
+    for cam, tc in zip(cams, true_cams):
+        # landmarks the true camera sees face-on enough
+        nrm = vertex_normals(fitted.expressed, head.mesh.faces)
+        lm_n = head.landmark_matrix() @ nrm
+        seen = (lm_n[:468] @ tc.direction) > 0.3
+        d = np.linalg.norm(cam.project(ours[seen]) - tc.project(truth_lm[:468][seen]), axis=1) / (tc.scale * iod)
+        out.append(float(np.median(d)))
+    return out
+
+
+def people_warps(data: Path, seeds, side_yaw: float, warps: list[str], scan: bool, cache: Path | None,
+                 shading: float, shading_options: dict | None = None) -> None:
+    """Section 3 for several warps of one identity fit (fit_identity, + shading when ``shading``):
+    ``warps`` as ``affine:D`` or ``sim:D``, the global fit and the deadband D (IOD, inf: no warp).
+    Own/other per warp, and the texture's alignment against the truth (:func:`alignment`)."""
+    head = generic_head()
+    prior, normals = prior_points(head)
+    truths = _people_truths(data, seeds, scan)
+    faces, heads, aligns, secs = [], {k: [] for k in warps}, {k: [] for k in warps}, []
+    for name, mesh in truths:
+        face = Face(mesh, landmarks_478(mesh, detect_landmarks(mesh)))
+        faces.append(face)
+        views = _views(name, mesh, side_yaw, cache)
+        true_lm = face.landmarks if name.startswith("FaceWarehouse") else head.landmarks(mesh.vertices)
+        true_cams = _true_cameras(mesh, side_yaw)
+        t = time.perf_counter()
+        rec = reconstruct(views, prior, normals)
+        w = fit_identity(head, views, rec)
+        if shading > 0:
+            from faceanim.build.shading import fit_identity_shading
+
+            w = fit_identity_shading(head, views, rec, w, weight=shading, **(shading_options or {})).weights
+        secs.append(time.perf_counter() - t)
+        for k in warps:
+            g, _, d = k.partition(":")
+            fh = fit_head(head, rec, "dffd", keep_expression=True, identity=w, deadband=float(d), affine=g == "affine")
+            heads[k].append(fh.vertices)
+            aligns[k].append(alignment(head, views, rec, fh, true_lm, true_cams))
+        print(f"{name}: identity fit {secs[-1]:.1f} s; alignment front/side (IOD) "
+              + ", ".join(f"{k} {a[-1][0]:.4f}/{a[-1][1]:.4f}" for k, a in aligns.items()), flush=True)
+    print(f"\nown/other by warp (identity: fit_identity{' + shading %g' % shading if shading else ''}); "
+          f"identity fit {np.median(secs):.1f} s per person (median)")
+    print("| warp | " + " | ".join(n for n, _ in truths) + " | median | alignment front, median (IOD) | side |")
+    print("|---|" + "---:|" * (len(truths) + 3))
+    for k in warps:
+        ratios = []
+        for i, face in enumerate(faces):
+            errs = [surface_error(face, v, head, head.landmarks(v))[0] for v in heads[k]]
+            ratios.append(errs[i] / float(np.mean([e for j, e in enumerate(errs) if j != i])))
+        a = np.array(aligns[k])
+        print(f"| {k} | " + " | ".join(f"{r:.2f}" for r in ratios) + f" | {np.median(ratios):.2f} | "
+              f"{np.median(a[:, 0]):.4f} | {np.median(a[:, 1]):.4f} |", flush=True)
+
+
 def real_photos(data: Path, sheet: Path | None) -> None:
     from faceanim.build.photo import head_from_photos
 
@@ -263,7 +338,7 @@ def real_photos(data: Path, sheet: Path | None) -> None:
     print("timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in ph.timings.items()) + f" (wall {total:.1f} s)")
     from faceanim.build.texture import BakeView, bake, seam_step
 
-    views = [BakeView(v.image, c) for v, c in zip(ph.views, ph.reconstruction.cameras)]
+    views = [BakeView(v.image, c) for v, c in zip(ph.views, ph.cameras or ph.reconstruction.cameras)]
     steps = {}
     for blend in ("none", "pyramid"):
         b = bake(ph.fitted.expressed, ph.mesh.faces, ph.mesh.uv, ph.mesh.face_uv, ph.parts, views, blend=blend)
@@ -277,7 +352,7 @@ def real_photos(data: Path, sheet: Path | None) -> None:
 
         m = ph.mesh
         tiles = []
-        for v, cam, rows in zip(ph.views, ph.reconstruction.cameras, ph.reconstruction.observed):
+        for v, cam, rows in zip(ph.views, ph.cameras or ph.reconstruction.cameras, ph.reconstruction.observed):
             h, w = v.image.shape[:2]
             # the rebuilt head through the photo's own solved camera (unlit albedo), the photo's
             # landmarks (green) and the rebuilt head's landmarks (red) on both
@@ -314,12 +389,20 @@ def main(argv=None) -> None:
     p.add_argument("--shading", type=float, default=0.0, help="section 3: refine fit_identity's weights by the "
                    "shading term with this weight (EXPERIMENT, scripts/photo_shading.py; not in faceanim photo)")
     p.add_argument("--shading-modes", type=int, default=30, help="leading identity modes the shading term moves")
-    p.add_argument("--shading-damping", type=float, default=0.0)
     p.add_argument("--shading-iterations", type=int, default=3, help="rounds of the shading fit")
     p.add_argument("--dense-only", action="store_true", help="section 3: only fit_identity's heads")
+    p.add_argument("--warps", help="section 3: compare warps of the identity, comma-separated affine:D or "
+                   "sim:D (global fit, deadband D in IOD; inf: no warp), with the texture's alignment")
     args = p.parse_args(argv)
-    opts = dict(modes=args.shading_modes, damping=args.shading_damping, iterations=args.shading_iterations)
-    if args.seeds:
+    opts = dict(modes=args.shading_modes, rounds=args.shading_iterations)
+    if args.warps:
+        if args.seeds:
+            lo, _, hi = args.seeds.partition("-")
+            seeds, scan = range(int(lo), int(hi or lo) + 1), False
+        else:
+            seeds, scan = range(300, 300 + args.people), True
+        people_warps(args.data, seeds, args.side_yaw, args.warps.split(","), scan, args.cache, args.shading, opts)
+    elif args.seeds:
         lo, _, hi = args.seeds.partition("-")
         people(args.data, range(int(lo), int(hi or lo) + 1), args.side_yaw, scan=False, cache=args.cache,
                shading=args.shading, shading_options=opts, dense_only=args.dense_only)

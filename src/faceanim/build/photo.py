@@ -22,6 +22,10 @@ The paper's cloning half, step by step:
    deformation** (Sibson coordinates, with the paper's 27 extra points around the head) or, as the
    alternative, the thin-plate spline of the RBF core. Eyeballs and teeth move as rigid bodies
    (rotation, translation, uniform scale) fitted to where the warp takes them: scaled, not warped.
+   By default the head is the person's identity fitted to the photos (landmarks, silhouettes and
+   shading: :func:`fit_identity`, :mod:`faceanim.build.shading`) and only placed on the points by a
+   similarity (the warp bent it onto the landmarks' noise and undid the identity: docs/photos.md);
+   ``fast`` leaves the shading out and warps as above (``method`` matters only then).
 4. **Expression off**: a photo that smiles or opens its mouth would give a head whose rest pose
    smiles. The generic head's own blendshapes (jaw open, smile, lip raise/lower, stretch, pucker,
    funnel) are fitted to the photo's mouth first; the texture is taken on the head *with* that
@@ -760,15 +764,30 @@ def head_deformer(head) -> tuple:
     return dirichlet_ffd(np.vstack([sites, box]), v), len(sites)
 
 
+def gentle_residual(resid: np.ndarray, size: float) -> np.ndarray:
+    """The warp's control-point residuals (N, 3) with a deadband of ``size``: each shortened by
+    ``size`` (soft thresholding), so a point within ``size`` of its target does not move the head
+    and one further off moves it by the excess only (``size`` inf: no warp)."""
+    if not size > 0:
+        return resid
+    n = np.linalg.norm(resid, axis=1, keepdims=True)
+    return resid * np.clip(1.0 - size / np.maximum(n, 1e-300), 0.0, 1.0)
+
+
 def fit_head(head, rec: Reconstruction, method: str = "dffd", keep_expression: bool = False,
-             identity: bool = True) -> FittedHead:
+             identity: bool = True, deadband: float = 0.0, affine: bool = True) -> FittedHead:
     """Deform the generic head onto the reconstructed points (see the module docstring, 3-4).
 
     ``identity``: start from the person's own head shape, the morphable head's identity fitted to
     the reconstructed landmarks (:func:`~faceanim.face.registration.fit_landmarks`, prior N(0, 1)),
     so the shape between the feature points (nose, cheeks, jaw, forehead, the skull) is a real
     person's of that build, not the generic head's; the warp then only takes up what is left. An
-    array: these identity weights (e.g. :func:`fit_identity`'s, as :func:`head_from_photos` does)."""
+    array: these identity weights (e.g. :func:`fit_identity`'s, as :func:`head_from_photos` does).
+
+    ``deadband`` (inter-ocular distances): the warp takes up only what of each control point's
+    residual exceeds it (:func:`gentle_residual`; the detector's own noise is about 0.015), so an
+    identity fitted from the photos is not bent onto the landmarks' noise; inf: no warp.
+    ``affine`` False: the global fit is a similarity (the identity keeps its proportions)."""
     g = head.mesh.vertices
     x = rec.points
     if isinstance(identity, np.ndarray):
@@ -784,8 +803,12 @@ def fit_head(head, rec: Reconstruction, method: str = "dffd", keep_expression: b
     ex = extra_vertices(head)
     rows = control_rows()
     sites_e = np.vstack([head.landmarks(ge), ge[[ex[n] for n in EXTRA_POINTS]]])[rows]
-    a = fit_affine(head.landmarks(ge)[SURFACE_LANDMARKS], x[SURFACE_LANDMARKS])
-    resid = x[rows] - apply_affine(a, sites_e)
+    if affine:
+        a = fit_affine(head.landmarks(ge)[SURFACE_LANDMARKS], x[SURFACE_LANDMARKS])
+    else:
+        s_, r_, t_ = similarity(head.landmarks(ge)[SURFACE_LANDMARKS], x[SURFACE_LANDMARKS])
+        a = np.c_[s_ * r_, t_]
+    resid = gentle_residual(x[rows] - apply_affine(a, sites_e), deadband * rec.iod)
     if method == "dffd":
         deformer, n_sites = head_deformer(head)
         offsets = np.zeros((deformer.n_handles, 3))
@@ -835,6 +858,20 @@ def rigid_groups(head) -> list[tuple[np.ndarray, np.ndarray]]:
     return out
 
 
+def bake_cameras(head, views: list[PhotoView], rec: Reconstruction, fitted: FittedHead) -> list[ViewCamera]:
+    """Each photo's camera for the texture: refitted to the photo's points (those the
+    reconstruction kept) on the head as fitted, with the photo's expression (a head the warp does
+    not put exactly on the 3D points is still seen where the photo shows it)."""
+    ex = extra_vertices(head)
+    pts = np.vstack([head.landmarks(fitted.expressed), fitted.expressed[[ex[n] for n in EXTRA_POINTS]]])
+    cams = []
+    for v, kept in zip(views, rec.observed):
+        rows, pix = _view_targets(v)
+        ok = np.isin(rows, kept)
+        cams.append(_refit_camera(v, pts, rows[ok], pix[ok]))
+    return cams
+
+
 # ---------------------------------------------------------------------------------------- pipeline
 @dataclass
 class PhotoHead:
@@ -849,6 +886,7 @@ class PhotoHead:
     reconstruction: Reconstruction
     fitted: FittedHead
     timings: dict
+    cameras: list = field(default_factory=list)  # each photo's camera the texture was taken with
 
     def face(self):
         """The head as a :class:`~faceanim.face.face.Face` (its landmarks are known: no detection)."""
@@ -873,13 +911,26 @@ def load_views(front, sides=()) -> list[PhotoView]:
     return views
 
 
+# the warp's deadband (inter-ocular distances) after the shading fit: a control point this close
+# to its target does not move the head (see fit_head). On ICT seeds 1000-1009 (tuning), own/other
+# median: full warp 0.75, deadband 0.01 0.63, 0.02 0.52, 0.03 0.48, no warp 0.43 (affine) and 0.39
+# (similarity); the texture's landmarks lie nearer the truth's in the renders without the warp too
+# (front 0.0146 -> 0.0107 IOD, profile 0.035 -> 0.025): the warp followed the detector's noise.
+# So no warp: the head is placed by a similarity and each photo's camera refitted to it
+SHADED_DEADBAND = np.inf
+
+
 def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_expression: bool = False,
-                     texture_size: int = 1024, blend: str = "pyramid", progress=None) -> PhotoHead:
+                     texture_size: int = 1024, blend: str = "pyramid", progress=None, fast: bool = False,
+                     deadband: float | None = None) -> PhotoHead:
     """The whole pipeline: photos -> a textured, animatable full head (module docstring, 1-5).
 
     ``front``/``sides``: image paths or ``(name, (H, W, 3) uint8)`` pairs; ``points``: corrections
     (:func:`apply_corrections`, a dict or a JSON path); ``method``: ``dffd`` or ``rbf``;
-    ``progress``: an optional callable taking the name of each of the four stages as it starts.
+    ``progress``: an optional callable taking the name of each of the four stages as it starts;
+    ``fast``: leave out the shading fit (:mod:`faceanim.build.shading`, about 20 s) and warp the
+    landmark identity fully onto the 3D points, as before it; ``deadband``: the warp's after the
+    shading fit (inter-ocular distances; default ``SHADED_DEADBAND``, inf: no warp).
     """
     step = progress or (lambda name: None)
     import time
@@ -918,17 +969,31 @@ def head_from_photos(front, sides=(), points=None, method: str = "dffd", keep_ex
     step("fitting the head")
     # the person's identity from the photos themselves (landmarks, a profile's silhouette, the
     # front outline), then the warp onto the 3D points
-    fitted = fit_head(head, rec, method, keep_expression, identity=fit_identity(head, views, rec))
+    weights = fit_identity(head, views, rec)
+    if fast:
+        fitted = fit_head(head, rec, method, keep_expression, identity=weights)
+        cameras = rec.cameras
+    else:
+        from faceanim.build.shading import fit_identity_shading
+
+        # the shading of the photos refines the identity; the head is placed on the 3D points by a
+        # similarity, not bent onto them (the warp followed the landmarks' noise and undid the
+        # identity; SHADED_DEADBAND), and each photo's camera is refitted to the head so that the
+        # texture meets the photo's features
+        weights = fit_identity_shading(head, views, rec, weights).weights
+        fitted = fit_head(head, rec, method, keep_expression, identity=weights,
+                          deadband=SHADED_DEADBAND if deadband is None else float(deadband), affine=False)
+        cameras = bake_cameras(head, views, rec, fitted)
     timings[f"head modification ({method})"] = time.perf_counter() - t
     t = time.perf_counter()
     step("the texture")
     faces = head.mesh.faces
     uv, face_uv = atlas_uv(fitted.vertices, faces, head.parts)
-    textured = [BakeView(v.image, c) for v, c in zip(views, rec.cameras)]
+    textured = [BakeView(v.image, c) for v, c in zip(views, cameras)]
     texture = bake_texture(fitted.expressed, faces, uv, face_uv, head.parts, textured, size=texture_size, blend=blend)
     timings["texture"] = time.perf_counter() - t
     name = Path(views[0].name).stem if views[0].name else "head"
     mesh = Mesh(fitted.vertices, faces, uv, face_uv, texture, head.mesh.polygon_sizes, name=name,
                 source=f"photos:{views[0].name}")
     timings["total"] = time.perf_counter() - t0
-    return PhotoHead(mesh, head.landmarks(fitted.vertices), head.parts, views, rec, fitted, timings)
+    return PhotoHead(mesh, head.landmarks(fitted.vertices), head.parts, views, rec, fitted, timings, list(cameras))
