@@ -67,3 +67,22 @@ def browser():
         yield b
         b.close()
 
+
+
+def rendered_identity(seed: int):
+    """(generic head, one sampled ICT identity's vertices, its front + profile renders loaded as
+    photo views): a person whose head is known exactly, seen as faceanim photo sees photos."""
+    from faceanim.build import photo
+    from faceanim.face.generic_head import generic_head
+    from faceanim.face.mesh import Mesh
+    from faceanim.render import OffscreenRenderer
+
+    head = generic_head()
+    truth = head.identity(np.random.default_rng(seed).standard_normal(head.n_identity))
+    skin_faces = head.mesh.faces[np.isin(head.mesh.faces, head.parts["skin"]).all(axis=1)]
+    mesh = Mesh(truth, skin_faces)
+    renders = []
+    for yaw in (0.0, 90.0):
+        with OffscreenRenderer(mesh, size=(512, 512), yaw=yaw, parallel=True, background=(0.5, 0.5, 0.5)) as r:
+            renders.append(r.render())
+    return head, truth, photo.load_views(("front", renders[0]), [("profile", renders[1])])

@@ -17,7 +17,8 @@ import pytest
 
 from faceanim.build import photo as P
 from faceanim.face.frame import similarity
-from faceanim.face.generic_head import generic_head
+
+from conftest import rendered_identity
 
 SEED = 1000  # an identity of the tuning set (ICT seeds 1000-1009), not of the held-out one
 CHIN = (175, 152)  # the chin and the menton
@@ -27,19 +28,7 @@ OFF = 0.5  # how far a spoiled point is moved, inter-ocular distances
 @pytest.fixture(scope="module")
 def person():
     """(head, true identity vertices, front + profile views) of one ICT identity."""
-    from faceanim.face.mesh import Mesh
-    from faceanim.render import OffscreenRenderer
-
-    head = generic_head()
-    w = np.random.default_rng(SEED).standard_normal(head.n_identity)
-    truth = head.identity(w)
-    skin_faces = head.mesh.faces[np.isin(head.mesh.faces, head.parts["skin"]).all(axis=1)]
-    mesh = Mesh(truth, skin_faces)
-    renders = []
-    for yaw in (0.0, 90.0):
-        with OffscreenRenderer(mesh, size=(512, 512), yaw=yaw, parallel=True, background=(0.5, 0.5, 0.5)) as r:
-            renders.append(r.render())
-    views = P.load_views(("front", renders[0]), [("profile", renders[1])])
+    head, truth, views = rendered_identity(SEED)
     assert views[1].profile
     return head, truth, views
 

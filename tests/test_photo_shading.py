@@ -13,6 +13,8 @@ from faceanim.build import shading as S
 from faceanim.face.frame import similarity
 from faceanim.face.generic_head import generic_head
 
+from conftest import rendered_identity
+
 SEED = 1001  # an identity of the tuning set (ICT seeds 1000-1009), never of the held-out ones
 
 
@@ -51,19 +53,7 @@ def test_huber_keeps_small_residuals_and_tames_large_ones():
 def person():
     """(head, true vertices, front + profile views, reconstruction) of one ICT identity, rendered
     by the project's renderer (its lights are fixed in the mesh's frame)."""
-    from faceanim.face.mesh import Mesh
-    from faceanim.render import OffscreenRenderer
-
-    head = generic_head()
-    w = np.random.default_rng(SEED).standard_normal(head.n_identity)
-    truth = head.identity(w)
-    skin_faces = head.mesh.faces[np.isin(head.mesh.faces, head.parts["skin"]).all(axis=1)]
-    mesh = Mesh(truth, skin_faces)
-    renders = []
-    for yaw in (0.0, 90.0):
-        with OffscreenRenderer(mesh, size=(512, 512), yaw=yaw, parallel=True, background=(0.5, 0.5, 0.5)) as r:
-            renders.append(r.render())
-    views = P.load_views(("front", renders[0]), [("profile", renders[1])])
+    head, truth, views = rendered_identity(SEED)
     rec = P.reconstruct(views, *P.prior_points(head))
     return head, truth, views, rec
 

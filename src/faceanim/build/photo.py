@@ -624,6 +624,29 @@ def _outline_rows(view: PhotoView, cam: ViewCamera, neutral: np.ndarray, vertice
     return a / unit, b / unit
 
 
+def _identity_targets(views, rec) -> tuple[list, list[bool], list]:
+    """What an identity fit steers by, per view: the (rows, pixels) of the landmarks the
+    reconstruction kept (a profile's misdetections left out); whether the view's landmarks steer
+    at all (a three-quarter view's slide over the face as it turns, as they steer no 3D point in
+    reconstruct; nor does a refused profile); and a profile's silhouette span between its highest
+    and lowest midline point kept (forehead 10 to menton 152), None for other views."""
+    targets = []
+    for v, kept in zip(views, rec.observed):
+        rows, pix = _view_targets(v)
+        ok = np.isin(rows, kept)
+        targets.append((rows[ok], pix[ok]))
+    refused = rec.refused or [False] * len(views)
+    use = [(v.role == "front" or v.profile) and not off for v, off in zip(views, refused)]
+    spans = []
+    for v, (rows, _) in zip(views, targets):
+        if v.outline is None or not v.profile:
+            spans.append(None)
+            continue
+        ends = [int(np.argmin(np.linalg.norm(v.outline - v.points[int(i)], axis=1))) for i in rows if i < 478]
+        spans.append((min(ends), max(ends)) if len(ends) >= 2 else None)
+    return targets, use, spans
+
+
 def fit_identity(head, views: list[PhotoView], rec: Reconstruction, iterations: int = IDENTITY_ITERATIONS,
                  prior: float = 100.0, outline: float = 4.0) -> np.ndarray:
     """The identity weights (K,) of the person the photos show, fitted to the photos themselves.
@@ -652,25 +675,8 @@ def fit_identity(head, views: list[PhotoView], rec: Reconstruction, iterations: 
     p0, _ = prior_points(head)
     skin = head.parts["skin"]
     iod0 = float(np.linalg.norm(p0[OUTER_EYE_CORNERS[0]] - p0[OUTER_EYE_CORNERS[1]]))
-    # the points the reconstruction kept (a profile's misdetections left out)
-    targets = []
-    for v, kept in zip(views, rec.observed):
-        rows, pix = _view_targets(v)
-        ok = np.isin(rows, kept)
-        targets.append((rows[ok], pix[ok]))
-    # a three-quarter view's landmarks slide over the face as it turns: they steer no weight
-    # (as they steer no 3D point in reconstruct); nor does a refused profile
-    refused = rec.refused or [False] * len(views)
-    use = [(v.role == "front" or v.profile) and not off for v, off in zip(views, refused)]
+    targets, use, spans = _identity_targets(views, rec)
     cams = list(rec.cameras)
-    spans = []
-    for v, (rows, _) in zip(views, targets):
-        if v.outline is None or not v.profile:
-            spans.append(None)
-            continue
-        # the silhouette between the highest and the lowest midline point kept (forehead 10 to menton 152)
-        ends = [int(np.argmin(np.linalg.norm(v.outline - v.points[int(i)], axis=1))) for i in rows if i < 478]
-        spans.append((min(ends), max(ends)) if len(ends) >= 2 else None)
     if outline > 0 and views[0].role == "front" and views[0].outline is None:
         from faceanim.build.profile import head_outline
 

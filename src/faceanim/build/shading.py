@@ -179,20 +179,8 @@ def fit_identity_shading(head, views, rec, w0, weight: float = WEIGHT, modes: in
     p0, _ = P.prior_points(head)
     skin = head.parts["skin"]
     iod0 = float(np.linalg.norm(p0[P.OUTER_EYE_CORNERS[0]] - p0[P.OUTER_EYE_CORNERS[1]]))
-    targets = []
-    for v, kept in zip(views, rec.observed):
-        rows, pix = P._view_targets(v)
-        ok = np.isin(rows, kept)
-        targets.append((rows[ok], pix[ok]))
+    targets, use, spans = P._identity_targets(views, rec)
     refused = rec.refused or [False] * len(views)
-    use = [(v.role == "front" or v.profile) and not off for v, off in zip(views, refused)]
-    spans = []
-    for v, (rows, _) in zip(views, targets):
-        if v.outline is None or not v.profile:
-            spans.append(None)
-            continue
-        ends = [int(np.argmin(np.linalg.norm(v.outline - v.points[int(i)], axis=1))) for i in rows if i < 478]
-        spans.append((min(ends), max(ends)) if len(ends) >= 2 else None)
     outline = 4.0
     if views[0].outline is None:
         try:
