@@ -5,10 +5,10 @@ sounddevice package.
   (``--mic pulse``: PortAudio's ALSA host API reaches PulseAudio or PipeWire through ALSA's
   ``pulse`` plugin); each way it can fail is one line of our own (no PortAudio, no input at all,
   no such device, several that match), never PortAudio's text.
-- :class:`StreamResampler` brings the device's rate to the lip sync's 16 kHz block by block: a
-  linear-phase low-pass FIR (scipy's Kaiser design, its state kept from block to block) and each
-  output sample interpolated between the two filtered samples around its instant. Its delay is
-  half the filter, about 1 ms (libsoxr's streaming resampler holds back about 21 ms at 44.1 kHz).
+- :class:`StreamResampler` brings the device's rate to the lip sync's 16 kHz block by block
+  (polyphase rational resampling with a Kaiser-window low-pass designed by scipy). Its delay is
+  half the filter, about 1 ms (libsoxr's streaming resampler, which the project's offline
+  :func:`~faceanim.io.audio.resample` uses, holds back about 21 ms at 44.1 kHz).
 - :class:`MicFeed` records from the device (PortAudio's callback, 10 ms blocks, low latency) into
   a queue; its own thread resamples and feeds the same
   :class:`~faceanim.drivers.speech.stream.LiveLipSync` as a sound file does
@@ -125,8 +125,10 @@ def find_input(spec: str | None, sd=None) -> InputDevice:
 
 class StreamResampler:
     """Mono blocks at ``rate`` Hz to ``to`` Hz, block by block, the same output however the input
-    is cut (see the module docstring). Downsampling low-passes first: pass band to 0.9 of the new
-    Nyquist frequency, 60 dB down from 1.1 of it."""
+    is cut: rational resampling by ``up / down`` in polyphase form. The prototype low-pass (a
+    Kaiser-window FIR by scipy, at ``rate * up``) passes to 0.9 of the lower Nyquist frequency and
+    is 60 dB down from 1.1 of it; each output sample is one phase of it (about 100 taps) applied to
+    the input samples before it. The last input samples are kept for the next block."""
 
     def __init__(self, rate: float, to: int = SAMPLE_RATE):
         from scipy.signal import firwin, kaiserord
@@ -135,42 +137,51 @@ class StreamResampler:
         if self.rate <= 0 or self.to <= 0:
             raise ValueError("sample rates must be positive")
         g = gcd(self.rate, self.to)
-        self.up, self.down = self.to // g, self.rate // g  # output j sits at input j * down / up
-        self.taps = None
-        if self.rate > self.to:
-            nyquist = self.to / 2
-            numtaps, beta = kaiserord(60.0, 0.2 * nyquist / (self.rate / 2))
-            numtaps |= 1  # odd: a whole-sample delay
-            self.taps = firwin(numtaps, nyquist, window=("kaiser", beta), fs=self.rate)
-            self.state = np.zeros(numtaps - 1)
-        self.consumed = 0  # input samples filtered so far
+        self.up, self.down = self.to // g, self.rate // g  # output j is at input j * down / up
+        self.consumed = 0  # input samples taken so far
         self.made = 0  # output samples made so far
-        self.last = 0.0  # the filtered sample before this block (0 before the first)
+        self.lag = 0  # output samples of delay
+        if self.rate == self.to:
+            self.phases = None
+            return
+        fast = self.rate * self.up  # the rate the prototype filter runs at
+        edge = min(self.rate, self.to) / 2
+        numtaps, beta = kaiserord(60.0, 0.2 * edge / (fast / 2))
+        # the delay a whole number of output samples: (length - 1) / 2 fast samples, a multiple of
+        # `down` (fast / to)
+        self.lag = -(-(numtaps - 1) // (2 * self.down))
+        length = 2 * self.lag * self.down + 1
+        h = firwin(length, edge, window=("kaiser", beta), fs=fast) * self.up
+        taps_per_phase = -(-length // self.up)
+        h = np.r_[h, np.zeros(taps_per_phase * self.up - length)]  # a whole number of taps per phase
+        self.phases = h.reshape(taps_per_phase, self.up).T  # phases[r, k] = h[r + k * up]
+        self.history = np.zeros(taps_per_phase - 1)  # the input samples before the block
 
     @property
     def delay(self) -> float:
-        """Seconds the output lags the input by (the filter's group delay)."""
-        return 0.0 if self.taps is None else (len(self.taps) - 1) / 2 / self.rate
+        """Seconds the output lags the input by (the filter's group delay: :attr:`lag` output samples)."""
+        return 0.0 if self.phases is None else self.lag / self.to
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        from scipy.signal import lfilter
-
         x = np.asarray(x, dtype=np.float64).ravel()
-        if self.rate == self.to or not len(x):
-            return x.astype(np.float32) if self.rate == self.to else np.zeros(0, np.float32)
-        if self.taps is not None:
-            x, self.state = lfilter(self.taps, 1.0, x, zi=self.state)
-        seq = np.r_[self.last, x]  # seq[i] is input sample consumed - 1 + i
-        top = self.consumed + len(x) - 1  # the newest input sample
-        end = top * self.up // self.down + 1  # outputs at or before it
+        if self.phases is None:
+            self.consumed += len(x)
+            return x.astype(np.float32)
+        if not len(x):
+            return np.zeros(0, np.float32)
+        taps = self.phases.shape[1]
+        buf = np.r_[self.history, x]  # buf[i] is input sample consumed - (taps - 1) + i
+        newest = self.consumed + len(x) - 1
+        end = ((newest + 1) * self.up - 1) // self.down + 1  # every output whose newest input is here
         j = np.arange(self.made, end, dtype=np.int64)
-        pos = j * self.down
-        whole, frac = pos // self.up - (self.consumed - 1), (pos % self.up) / self.up
-        nxt = np.minimum(whole + 1, len(seq) - 1)  # frac is 0 where whole + 1 is past the block
-        out = seq[whole] * (1.0 - frac) + seq[nxt] * frac
+        at = j * self.down  # output j on the fast clock
+        n = at // self.up  # the newest input sample under it
+        r = at - n * self.up  # the phase
+        idx = (n - (self.consumed - (taps - 1)))[:, None] - np.arange(taps)[None, :]
+        out = np.einsum("jk,jk->j", self.phases[r], buf[idx])
         self.consumed += len(x)
         self.made = end
-        self.last = float(x[-1])
+        self.history = buf[len(buf) - (taps - 1):]
         return out.astype(np.float32)
 
 
