@@ -462,3 +462,14 @@ def test_live_mic_with_a_video_gives_the_video_the_mic_s_mouth(loopback, tmp_pat
     assert (t < 0).sum() > 30 and jaw[t < 0].max() < 0.05  # the video's speaker talks, the microphone is quiet: shut
     assert jaw[(t > 0) & (t < len(speech) / 16000 + 0.8)].max() > 0.3
     assert take.weights[:, ARKIT_NAMES.index("EyeBlinkLeft")].max() > 0.3  # the video's own eyes
+
+
+def test_live_mic_without_the_sounddevice_package(monkeypatch, tmp_path, capsys):
+    from faceanim.cli import main
+
+    monkeypatch.setitem(sys.modules, "sounddevice", None)  # `import sounddevice` raises ImportError
+    out = tmp_path / "take.csv"
+    assert main(["live", "--mic", "--to", f"file:{out}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'live' extra" in err[0] and "pip install 'faceanim[live]'" in err[0]
+    assert not out.exists()
