@@ -6,12 +6,16 @@
 #     Mesa EGL/GL (offscreen rendering: EGL with Mesa's llvmpipe) and libGL/GLib for opencv
 #       (mediapipe): libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri libglx-mesa0 libgbm1, libglib2.0-0
 #     espeak-ng (speech synthesis), optional
+#     PortAudio, libportaudio2 (faceanim live --mic records through it), optional
 #     chromium (Debian's; the browser viewer's end-to-end tests drive it headless with Playwright),
 #       optional
 #     Node.js with npm (the glTF validator and three-vrm used by tests; three.js for faceanim
 #       view), optional: Debian's `nodejs npm` only when neither node nor npm exists (NodeSource's
 #       nodejs carries its own npm, and Debian's npm conflicts with it)
 #     python3 with venv, required, only when there is no usable .venv and no usable python3
+#     with --tests only: PulseAudio (pulseaudio pulseaudio-utils) and ALSA's pulse plugin
+#       (libasound2-plugins), optional: the virtual microphone of the --mic tests
+#       (tests/pulse_loopback.py); without them those tests are skipped
 #   .venv: a virtual environment with faceanim installed from this checkout (required)
 #   tools/node_modules: the Khronos glTF validator and three-vrm, with npm (optional)
 #   src/faceanim/viewer/static/node_modules: three.js and three-vrm served by faceanim view, with
@@ -103,6 +107,19 @@ have espeak-ng \
   || need espeak-ng espeak-ng 0 "speech synthesis (faceanim say TEXT) and its tests will be skipped"
 have chromium \
   || need chromium chromium 0 "the browser viewer's tests (faceanim view in headless Chromium) will be skipped"
+has_lib libportaudio.so.2 \
+  || need PortAudio libportaudio2 0 "faceanim live --mic (a microphone) will not work"
+if [ "$with_tests" = 1 ]; then
+  pulse_pkgs=()
+  have pulseaudio || pulse_pkgs+=(pulseaudio)
+  { have pactl && have pacat; } || pulse_pkgs+=(pulseaudio-utils)
+  # ALSA's pulse plugin, beside libasound (PortAudio reaches PulseAudio through it)
+  asound=$(lib_path libasound.so.2 || true)
+  { [ -n "$asound" ] && [ -e "${asound%/*}/alsa-lib/libasound_module_pcm_pulse.so" ]; } \
+    || pulse_pkgs+=(libasound2-plugins)
+  [ ${#pulse_pkgs[@]} -eq 0 ] \
+    || need "PulseAudio (tests)" "${pulse_pkgs[*]}" 0 "the live --mic tests (a virtual microphone) will be skipped"
+fi
 
 node_note=""
 if have node && have npm; then

@@ -30,6 +30,8 @@ LIBS = [
     "libglapi.so.0",
     "libglib-2.0.so.0",
     "libgthread-2.0.so.0",
+    "libportaudio.so.2",
+    "libasound.so.2",
 ]
 MESA_PKGS = ["libegl1", "libgl1", "libegl-mesa0", "libglx-mesa0", "libgbm1", "libgl1-mesa-dri"]
 HELD = "E: Unable to correct problems, you have held broken packages."
@@ -58,10 +60,14 @@ if [ "$1" = install ]; then
       nodejs) cmd=node ;;
       npm) cmd=npm ;;
       chromium) cmd=chromium ;;
+      pulseaudio) cmd=pulseaudio ;;
+      pulseaudio-utils) cmd="pactl pacat" ;;
       *) continue ;;
     esac
-    printf '#!{bash}\\nexit 0\\n' > "$FAKE_BIN/$cmd"
-    chmod +x "$FAKE_BIN/$cmd"
+    for c in $cmd; do
+      printf '#!{bash}\\nexit 0\\n' > "$FAKE_BIN/$c"
+      chmod +x "$FAKE_BIN/$c"
+    done
   done
 fi
 exit 0
@@ -108,6 +114,8 @@ class Sandbox:
         self.stub("ldconfig", FAKE_LDCONFIG.format(bash=BASH))
         self.stub("python3", OK.format(bash=BASH))
         self.stub("chromium")  # present unless a test removes it
+        for tool in ("pulseaudio", "pactl", "pacat"):  # present unless a test removes them
+            self.stub(tool)
         self.libs(LIBS, dri=True)
 
     def stub(self, name: str, text: str | None = None) -> None:
@@ -120,18 +128,21 @@ class Sandbox:
         for name in names:
             (self.bin / name).unlink(missing_ok=True)
 
-    def libs(self, names, dri: bool) -> None:
-        """What `ldconfig -p` lists, and whether Mesa's swrast DRI driver lies beside the libraries."""
+    def libs(self, names, dri: bool, pulse_plugin: bool = True) -> None:
+        """What `ldconfig -p` lists, and whether Mesa's swrast DRI driver and ALSA's pulse plugin
+        lie beside the libraries."""
         lines = [f"{len(names)} libs found in cache `/etc/ld.so.cache'"]
         lines += [f"\t{n} (libc6,x86-64) => {self.libdir / n}" for n in names]
         self.ldlist.write_text("\n".join(lines) + "\n")
-        swrast = self.libdir / "dri" / "swrast_dri.so"
-        if dri:
-            swrast.write_text("")
-        else:
-            swrast.unlink(missing_ok=True)
+        for path, present in ((self.libdir / "dri" / "swrast_dri.so", dri),
+                              (self.libdir / "alsa-lib" / "libasound_module_pcm_pulse.so", pulse_plugin)):
+            path.parent.mkdir(exist_ok=True)
+            if present:
+                path.write_text("")
+            else:
+                path.unlink(missing_ok=True)
 
-    def run(self, fail: str = "", uid: int | None = None) -> subprocess.CompletedProcess:
+    def run(self, fail: str = "", uid: int | None = None, args: tuple = ()) -> subprocess.CompletedProcess:
         if uid is not None:
             self.stub("id", f"#!{BASH}\necho {uid}\n")
         env = {
@@ -146,7 +157,7 @@ class Sandbox:
             "FAKE_SUDO_LOG": str(self.sudo_log),
         }
         return subprocess.run(
-            [BASH, str(self.repo / "scripts" / "setup.sh")],
+            [BASH, str(self.repo / "scripts" / "setup.sh"), *args],
             env=env,
             stdin=subprocess.DEVNULL,
             capture_output=True,
@@ -205,8 +216,9 @@ def test_nothing_present_asks_for_everything(box):
     assert ["espeak-ng"] in installs
     assert ["chromium"] in installs
     assert ["libglib2.0-0"] in installs
+    assert ["libportaudio2"] in installs
     assert sorted(next(c for c in installs if "libegl1" in c)) == sorted(MESA_PKGS)
-    assert len(installs) == 5
+    assert len(installs) == 6
     assert "note:" not in r.stderr
 
 
@@ -374,3 +386,46 @@ def test_missing_python_is_required(box):
 def test_unknown_argument_is_an_error(box):
     r = subprocess.run([BASH, str(box.repo / "scripts" / "setup.sh"), "--bogus"], capture_output=True, text=True)
     assert r.returncode == 2 and "unknown argument" in r.stderr
+
+
+def test_portaudio_missing_gets_its_own_call_and_a_conflict_is_a_note(box):
+    """PortAudio (live --mic) is optional: libportaudio2 in its own call; refused, one note."""
+    box.stub("node")
+    box.stub("npm")
+    box.stub("espeak-ng")
+    box.libs([n for n in LIBS if n != "libportaudio.so.2"], dri=True)
+    r = box.run()
+    assert r.returncode == 0, r.stderr
+    assert box.installs() == [["libportaudio2"]]
+    assert "setup: installing PortAudio (libportaudio2)" in r.stdout
+    box.apt_log.unlink()
+    r = box.run(fail="libportaudio2")
+    assert r.returncode == 0, r.stderr
+    notes = [line for line in r.stderr.splitlines() if line.startswith("setup: note:")]
+    assert notes == ["setup: note: could not install libportaudio2; faceanim live --mic (a microphone) will not work"]
+
+
+def test_the_virtual_microphone_is_asked_for_with_tests_only(box):
+    """PulseAudio, its tools and ALSA's pulse plugin (the --mic tests' virtual microphone): with
+    --tests, one call for what is missing; without --tests, never."""
+    box.stub("node")
+    box.stub("npm")
+    box.stub("espeak-ng")
+    box.remove("pulseaudio", "pactl", "pacat")
+    box.libs(LIBS, dri=True, pulse_plugin=False)
+    r = box.run()
+    assert r.returncode == 0, r.stderr
+    assert box.apt_calls == []
+    r = box.run(args=("--tests",))
+    assert r.returncode == 0, r.stderr
+    assert box.installs() == [["pulseaudio", "pulseaudio-utils", "libasound2-plugins"]]
+    box.apt_log.unlink()
+    box.remove("pactl")  # pulseaudio is there (the fake apt made it), pactl gone; the plugin in place
+    box.libs(LIBS, dri=True)
+    r = box.run(args=("--tests",))
+    assert box.installs() == [["pulseaudio-utils"]]
+    box.apt_log.unlink()
+    box.remove("pulseaudio")
+    r = box.run(fail="pulseaudio", args=("--tests",))
+    assert r.returncode == 0, r.stderr
+    assert "could not install pulseaudio; the live --mic tests (a virtual microphone) will be skipped" in r.stderr

@@ -3,7 +3,8 @@ one that is not installed says which, in one line, before it starts.
 
 - ``speech``: pocketsphinx (aligning recorded speech with its transcript, hearing phones without
   one, live lip sync); ``say TEXT`` itself needs only espeak-ng;
-- ``live``: python-osc and websockets (``faceanim live``'s VMC and browser sinks), and pocketsphinx;
+- ``live``: python-osc and websockets (``faceanim live``'s VMC and browser sinks), sounddevice
+  (``--mic``, PortAudio; the PortAudio library itself is Debian's libportaudio2), and pocketsphinx;
 - ``batch``: Dask's distributed scheduler and bokeh (``faceanim batch``);
 - ``identity``: dlib and its face recognition network (``faceanim photo`` with side photos checks
   that they show the front photo's person).
@@ -17,8 +18,8 @@ import importlib
 
 from faceanim.errors import FaceAnimError
 
-EXTRAS = {"pocketsphinx": "speech", "pythonosc": "live", "websockets": "live", "distributed": "batch",
-          "dask": "batch", "dlib": "identity", "face_recognition_models": "identity"}
+EXTRAS = {"pocketsphinx": "speech", "pythonosc": "live", "websockets": "live", "sounddevice": "live",
+          "distributed": "batch", "dask": "batch", "dlib": "identity", "face_recognition_models": "identity"}
 
 
 class MissingExtra(FaceAnimError):

@@ -19,16 +19,19 @@ def _cmd_live(args) -> None:
 
     if args.video is not None and args.camera is not None:
         raise CommandError("give --video FILE or --camera N, not both")
-    if args.video is None and args.camera is None and args.audio is None:
-        raise CommandError("give a source: --camera N, --video FILE and/or --audio FILE")
+    if args.audio is not None and args.mic is not None:
+        raise CommandError("give --audio FILE or --mic, not both (one sound drives the mouth)")
+    heard = args.audio is not None or args.mic is not None
+    if args.video is None and args.camera is None and not heard:
+        raise CommandError("give a source: --camera N, --video FILE and/or --audio FILE or --mic [DEVICE]")
     picture = args.video is not None or args.camera is not None
-    if args.mouth is not None and not (picture and args.audio is not None):
-        raise CommandError("--mouth chooses between a video's mouth and a sound's; give --audio with --video or "
-                           "--camera")
-    if args.audio is not None:
+    if args.mouth is not None and not (picture and heard):
+        raise CommandError("--mouth chooses between a video's mouth and a sound's; give --audio or --mic with "
+                           "--video or --camera")
+    if heard:
         from faceanim.extras import require
 
-        require("pocketsphinx", "live lip sync (--audio)")
+        require("pocketsphinx", "live lip sync (--audio, --mic)")
     # every sink checked before the source is opened (a camera light should not flash for a typo)
     views = [t for t in args.to if t == "viewer" or t.startswith("viewer:")]
     if args.face is not None and not views:
@@ -58,15 +61,19 @@ def _cmd_live(args) -> None:
         raise CommandError("a --to file: output is an input; give the take its own path")
     check_outputs(*files)
     sound = None
+    if args.audio is not None:
+        from faceanim.live.audio import AudioFeed, read_sound
+
+        sound = AudioFeed(read_sound(args.audio), args.seconds, Path(args.audio).name)
+    elif args.mic is not None:
+        from faceanim.live.mic import MicFeed, find_input
+
+        sound = MicFeed(find_input(args.mic))  # opened now: a device that cannot record is refused here
     if not picture:
         from faceanim.live.audio import AudioSource
 
-        source = AudioSource(args.audio, seconds=args.seconds)
+        source, sound = AudioSource(sound, seconds=args.seconds), None
     else:
-        if args.audio is not None:
-            from faceanim.live.audio import AudioFeed, read_sound
-
-            sound = AudioFeed(read_sound(args.audio), args.seconds)
         source = ClipSource(args.video, seconds=args.seconds) if args.video is not None else \
             CameraSource(args.camera, seconds=args.seconds)
     for s in sinks:  # the rate now known
@@ -78,8 +85,8 @@ def _cmd_live(args) -> None:
 
         sinks.append(ViewerSink(views[0], args.face))  # its servers start here
     print(f"faceanim live: {source.name} ({source.fps:g} fps) -> {', '.join(s.label for s in sinks)}"
-          + (f" with the sound of {Path(args.audio).name} ({args.mouth or 'both'} mouth)" if sound else "")
-          + ("" if args.camera is None else "; Ctrl-C stops"), file=sys.stderr, flush=True)
+          + (f" with the sound of {sound.name} ({args.mouth or 'both'} mouth)" if sound else "")
+          + ("" if args.camera is None and args.mic is None else "; Ctrl-C stops"), file=sys.stderr, flush=True)
     page = next((s.url for s in sinks if hasattr(s, "url")), None)
     if page and not args.no_browser:
         import threading
@@ -109,7 +116,7 @@ def register(sub) -> None:
     p = sub.add_parser("live", help=HELP["live"],
                        description="Track a face live (a camera, or a clip played at its own frame rate), run the "
                                    "ARKit solve of `faceanim perform` causally (and/or lip sync a sound "
-                                   "played in real time, --audio), and send ARKit's 52 curves "
+                                   "played in real time, --audio, or a microphone, --mic), and send ARKit's 52 curves "
                                    "with the head's and eyes' angles to each --to: vmc://HOST:PORT (VSeeFace, VNyan, "
                                    "Warudo, VMagicMirror; port 39539), livelink://HOST:PORT (Unreal's Live Link, "
                                    "port 11111), file:PATH (the run written when it stops: a Live Link Face CSV, Rhubarb "
@@ -123,9 +130,13 @@ def register(sub) -> None:
                                                    "(the brows on the voice's accents, blinks at its pauses, the "
                                                    "head nodding and leaning phrase by phrase), with a video its "
                                                    "mouth")
+    p.add_argument("--mic", nargs="?", const="", metavar="DEVICE",
+                   help="a microphone, heard live as --audio plays a file (PortAudio): the default input device, "
+                        "or DEVICE, an index or a part of a name (--mic pulse: PulseAudio or PipeWire through "
+                        "ALSA); runs until --seconds or Ctrl-C")
     p.add_argument("--mouth", choices=("audio", "video", "both"),
-                   help="with --audio and a video or camera: whose mouth the avatar has (default: both, averaged; "
-                        "the lips shut when either shuts them)")
+                   help="with --audio or --mic and a video or camera: whose mouth the avatar has (default: both, "
+                        "averaged; the lips shut when either shuts them)")
     p.add_argument("--to", action="append", metavar="SINK", required=True,
                    help="where the curves go (repeatable): vmc://HOST:PORT, livelink://HOST:PORT, file:PATH "
                         "(.csv .tsv .json .glb) or viewer[:PORT] (the faceanim view page, 8760 by default)")
@@ -140,5 +151,5 @@ def register(sub) -> None:
                                                   "face with ARKit's shapes)")
     p.add_argument("--no-browser", action="store_true", help="with --to viewer: do not open the page")
     p.add_argument("--seconds", type=_arg_type("--seconds", 0.1, 86400.0), metavar="S",
-                   help="stop after S seconds (default: the clip's end, or Ctrl-C)")
+                   help="stop after S seconds (default: the clip's or the sound's end, or Ctrl-C)")
     p.set_defaults(func=_cmd_live)

@@ -1,14 +1,16 @@
-"""Live lip sync: a sound file played in real time drives the mouth, alone or with a video's face.
+"""Live lip sync: a sound file played in real time, or a microphone, drives the mouth, alone or
+with a video's face.
 
 - :class:`AudioFeed` plays a sound (any file :func:`~faceanim.io.audio.read_audio` reads) in real
   time in its own thread, 20 ms at a time, into a
-  :class:`~faceanim.drivers.speech.stream.LiveLipSync`: the phones heard so far, the mouth now.
-- :class:`AudioSource` is a source of ticks (30 a second) for a run with no video: each tick
-  carries the face's ARKit curves at that moment, the mouth from the lip sync and the brows and
-  blinks from the voice's prosody (:class:`~faceanim.drivers.speech.prosody.LiveProsody`: brows
-  on pitch accents, blinks at pauses), with the head's nods and leans per phrase; :class:`IdleFace`
-  adds a slow head sway so the avatar is never still (deterministic: the same sound gives the
-  same curves).
+  :class:`~faceanim.drivers.speech.stream.LiveLipSync`: the phones heard so far, the mouth now;
+  :class:`faceanim.live.mic.MicFeed` does the same with a microphone (both :class:`SoundFeed`).
+- :class:`AudioSource` is a source of ticks (30 a second) for a run with no video (a file's or a
+  microphone's feed): each tick carries the face's ARKit curves at that moment, the mouth from the
+  lip sync and the brows, blinks and looks from the voice's prosody
+  (:class:`~faceanim.drivers.speech.prosody.LiveProsody`: brows on pitch accents, blinks at
+  pauses), with the head's nods and leans per phrase; :class:`IdleFace` adds a slow head sway so
+  the avatar is never still (deterministic: the same sound gives the same curves).
 - :func:`merge_mouth` puts the sound's mouth into a video frame's curves (``--mouth``).
 """
 
@@ -48,13 +50,17 @@ def read_sound(path) -> np.ndarray:
     return x
 
 
-class AudioFeed:
-    """The sound played in real time into a lip sync and the voice's prosody (its own thread):
-    :meth:`curves` is the face now (the (52,) ARKit curves in Live Link order: the mouth, the brows,
-    the blinks and the looks away; 0 elsewhere), :meth:`head` the head's angles. ``seconds`` stops it early."""
+class SoundFeed:
+    """A sound fed into a lip sync and the voice's prosody in its own thread, 20 ms at a time:
+    :meth:`curves` is the face now (the (52,) ARKit curves in Live Link order: the mouth, the
+    brows, the blinks and the looks away; 0 elsewhere), :meth:`head` the head's angles.
+    ``error``: why it stopped early (a :class:`~faceanim.errors.FaceAnimError`: a microphone
+    gone), else None; ``chunks``: 20 ms chunks fed so far. Subclasses feed in :meth:`_run`
+    (:class:`AudioFeed`, :class:`faceanim.live.mic.MicFeed`)."""
 
-    def __init__(self, samples: np.ndarray, seconds: float | None = None):
-        self.samples = samples
+    name = "sound"
+
+    def __init__(self, seconds: float | None = None):
         self.lipsync = LiveLipSync(APPLE)
         self.prosody = LiveProsody(SAMPLE_RATE)
         self.lock = threading.Lock()
@@ -63,28 +69,32 @@ class AudioFeed:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: Exception | None = None
+        self.chunks = 0
 
     @property
     def duration(self) -> float:
-        return len(self.samples) / SAMPLE_RATE
+        """Seconds of sound there are (inf for a microphone)."""
+        return np.inf
 
     def start(self) -> None:
         self.started = time.monotonic()
-        self._thread = threading.Thread(target=self._run, name="faceanim live sound", daemon=True)
+        self._thread = threading.Thread(target=self._guarded, name=f"faceanim live {self.name}", daemon=True)
         self._thread.start()
 
-    def _run(self) -> None:
+    def _guarded(self) -> None:
         try:
-            end = len(self.samples) if self.seconds is None else min(len(self.samples), int(self.seconds * SAMPLE_RATE))
-            for k in range(0, end, CHUNK):
-                wait = self.started + (k + CHUNK) / SAMPLE_RATE - time.monotonic()
-                if wait > 0 and self._stop.wait(wait):
-                    return
-                with self.lock:
-                    self.lipsync.feed(self.samples[k:min(k + CHUNK, end)])
-                    self.prosody.feed(self.samples[k:min(k + CHUNK, end)])
-        except Exception as exc:  # noqa: BLE001 -- reported by the run, which goes on without sound
+            self._run()
+        except Exception as exc:  # noqa: BLE001 -- reported by the run (a FaceAnimError says what)
             self.error = exc
+
+    def _run(self) -> None:
+        raise NotImplementedError
+
+    def _feed(self, samples: np.ndarray) -> None:
+        with self.lock:
+            self.lipsync.feed(samples)
+            self.prosody.feed(samples)
+        self.chunks += 1
 
     def curves(self) -> np.ndarray:
         with self.lock:
@@ -110,6 +120,28 @@ class AudioFeed:
             self._thread.join(timeout=2.0)
 
 
+class AudioFeed(SoundFeed):
+    """A sound file's samples (16 kHz) played in real time into the lip sync; ``seconds`` stops it
+    early."""
+
+    def __init__(self, samples: np.ndarray, seconds: float | None = None, name: str = "sound"):
+        super().__init__(seconds)
+        self.samples = samples
+        self.name = name
+
+    @property
+    def duration(self) -> float:
+        return len(self.samples) / SAMPLE_RATE
+
+    def _run(self) -> None:
+        end = len(self.samples) if self.seconds is None else min(len(self.samples), int(self.seconds * SAMPLE_RATE))
+        for k in range(0, end, CHUNK):
+            wait = self.started + (k + CHUNK) / SAMPLE_RATE - time.monotonic()
+            if wait > 0 and self._stop.wait(wait):
+                return
+            self._feed(self.samples[k:min(k + CHUNK, end)])
+
+
 class IdleFace:
     """A slow head sway for a face driven by sound alone, under the voice's nods and leans; the
     same every run (a fixed seed)."""
@@ -124,19 +156,25 @@ class IdleFace:
 
 
 class AudioSource(Source):
-    """Ticks at :data:`TICK_FPS` while the sound plays (no picture): each :class:`Frame` has no
-    image and the mouth's curves as ``mouth``; the run ends with the sound."""
+    """Ticks at :data:`TICK_FPS` while a :class:`SoundFeed` plays (no picture): each :class:`Frame`
+    has no image and the mouth's curves as ``mouth``. The run ends with the sound (a file's end,
+    ``seconds``), or when the feed fails (a microphone gone: the run's error says why)."""
 
     images = False
 
-    def __init__(self, path, seconds: float | None = None):
+    def __init__(self, feed: SoundFeed, seconds: float | None = None):
+        super().__init__()
+        self.feed = feed
+        self.fps = TICK_FPS
+        self.name = feed.name
+        self.length = min(self.feed.duration, seconds if seconds is not None else np.inf)
+
+    @classmethod
+    def of_file(cls, path, seconds: float | None = None) -> AudioSource:
+        """A sound file played in real time (refused when silent)."""
         from pathlib import Path
 
-        super().__init__()
-        self.feed = AudioFeed(read_sound(path), seconds)
-        self.fps = TICK_FPS
-        self.name = Path(path).name
-        self.length = min(self.feed.duration, seconds if seconds is not None else np.inf)
+        return cls(AudioFeed(read_sound(path), seconds, Path(path).name), seconds)
 
     def _run(self) -> None:
         self.feed.start()
@@ -147,6 +185,8 @@ class AudioSource(Source):
                 wait = due - time.monotonic()
                 if wait > 0 and self._stop.wait(wait):
                     return
+                if self.feed.error is not None:
+                    raise self.feed.error
                 if i / self.fps >= self.length:
                     return
                 self.slot.put(Frame(i, time.monotonic(), i / self.fps, None, self.feed.curves(), self.feed.head()))

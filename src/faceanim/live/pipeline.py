@@ -28,7 +28,9 @@ class LiveReport:
     """What a run did: frames ``captured`` by the source, ``processed`` and ``dropped`` (captured
     but replaced before the compute took them), ``tracked`` (a face found), ``seconds`` of the run,
     ``latency`` (s, per processed frame: capture to sent), ``written`` files, ``interrupted``, the
-    source's ``error`` (a camera gone) and the ``samples`` (kept when asked)."""
+    source's ``error`` (a camera or a microphone gone) and the ``samples`` (kept when asked). With
+    a microphone, ``sound``: (20 ms chunks fed to the lip sync, chunks dropped because it fell
+    behind, blocks before which the device lost sound)."""
 
     captured: int = 0
     processed: int = 0
@@ -41,6 +43,7 @@ class LiveReport:
     error: str | None = None
     samples: list = field(default_factory=list)
     images: bool = True
+    sound: tuple | None = None
 
     @property
     def fps(self) -> float:
@@ -51,18 +54,21 @@ class LiveReport:
         p50, p95 = (np.percentile(lat, [50, 95]) if len(lat) else (float("nan"),) * 2)
         share = 100.0 * self.dropped / max(self.captured, 1)
         found = f"face found in {self.tracked}, " if self.images else ""
+        heard = "" if self.sound is None else (f"; sound {self.sound[0]} chunks of 20 ms, {self.sound[1]} dropped, "
+                                               f"{self.sound[2]} overflows")
         return (f"{self.processed} frames in {self.seconds:.1f} s ({self.fps:.1f} fps), {found}"
-                f"{self.dropped} dropped ({share:.1f}%), latency p50 {p50:.0f} ms, p95 {p95:.0f} ms")
+                f"{self.dropped} dropped ({share:.1f}%), latency p50 {p50:.0f} ms, p95 {p95:.0f} ms{heard}")
 
 
 def run_live(source: Source, sinks: list[Sink], performer: LiveFace | None = None,
              keep_samples: bool = False, tracker=None, notice=None, sound=None, mouth: str = "both") -> LiveReport:
     """Run until the source ends or Ctrl-C; see the module docstring. ``notice(text)`` is told once
     when the face has been lost for longer than the performer holds it. ``sound``: an
-    :class:`~faceanim.live.audio.AudioFeed` played beside a video source, its mouth merged into each
-    frame's by ``mouth`` (:func:`~faceanim.live.audio.merge_mouth`). A source of sound alone
-    (frames without images) drives the whole face: the mouth, the voice's brows, blinks and
-    head, over an idle sway."""
+    :class:`~faceanim.live.audio.SoundFeed` (a file or a microphone) beside a video source, its
+    mouth merged into each frame's by ``mouth`` (:func:`~faceanim.live.audio.merge_mouth`); if it
+    fails (a microphone gone), the run stops with its error. A source of sound alone (frames
+    without images) drives the whole face: the mouth, the voice's brows, blinks, looks and head,
+    over an idle sway."""
     from faceanim.drivers.video.tracking import FaceTracker
     from faceanim.io.files import native_stderr_quiet
     from faceanim.live.audio import IdleFace, merge_mouth, sound_sample
@@ -92,6 +98,9 @@ def run_live(source: Source, sinks: list[Sink], performer: LiveFace | None = Non
         while True:
             frame = source.slot.get()
             if frame is None:
+                break
+            if sound is not None and sound.error is not None:
+                report.error = _said(sound.error, "the sound")
                 break
             if frame.image is None:  # a tick of a sound alone
                 sample = sound_sample(frame.mouth, frame.head, frame.time, idle)
@@ -132,8 +141,18 @@ def run_live(source: Source, sinks: list[Sink], performer: LiveFace | None = Non
         report.captured, report.dropped = source.slot.captured, source.slot.dropped
         if source.slot.error is not None:
             report.error = str(source.slot.error)
+        feed = sound if sound is not None else getattr(source, "feed", None)
+        if hasattr(feed, "overflows"):  # a microphone
+            report.sound = (feed.chunks, feed.dropped, feed.overflows)
         for sink in sinks:
             written = sink.close()
             if written is not None:
                 report.written.append(written)
     return report
+
+
+def _said(error: Exception, what: str) -> str:
+    """An error as the run's report says it: a FaceAnimError's own message, else what stopped."""
+    from faceanim.errors import FaceAnimError
+
+    return str(error) if isinstance(error, FaceAnimError) else f"{what} stopped ({type(error).__name__})"

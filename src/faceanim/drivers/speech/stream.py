@@ -7,7 +7,9 @@ The newest phone of that path is still being heard and may yet change; a phone s
 about a tenth of a second after it starts (``benchmarks/bench_live.py``). An utterance is closed
 and a new one started at a pause (:data:`PAUSE` of quiet audio after at least :data:`MIN_UTTERANCE`
 of sound) and after :data:`MAX_UTTERANCE` at the latest, so the decoder's work per chunk stays
-small however long the stream runs.
+small however long the stream runs (and what is kept, however long it has been quiet). A phone
+heard where every 20 ms block under it was quiet (under :data:`QUIET_RMS`: a room's hiss, which
+the decoder hears as f or v) is silence: a microphone in a quiet room keeps the mouth shut.
 
 :class:`LiveLipSync` turns the phones into the face's mouth at the present moment with the same
 targets and co-articulation as ``faceanim say`` (:func:`~faceanim.drivers.speech.lipsync.lipsync_curves`):
@@ -62,6 +64,7 @@ class PhoneStream:
         self.heard = 0  # samples fed
         self.quiet = 0  # samples of quiet audio at the end of the stream
         self.loud = 0  # samples of sound in the open utterance
+        self.levels = bytearray()  # per 10 ms frame of the open utterance: 1 where its block was loud
         self.dec.start_utt()
 
     @property
@@ -80,14 +83,21 @@ class PhoneStream:
             return
         self.dec.process_raw((np.clip(x, -1, 1) * 32767).astype("<i2").tobytes(), False, False)
         self.heard += len(x)
-        block = SAMPLE_RATE // 50
+        block, frame = SAMPLE_RATE // 50, int(FRAME * SAMPLE_RATE)
+        at = self.heard - len(x) - int(round(self.offset * SAMPLE_RATE))  # the chunk's start in the utterance
         for k in range(0, len(x), block):
             part = x[k:k + block]
-            if float(np.sqrt(np.mean(np.square(part, dtype=np.float64)))) < QUIET_RMS:
+            loud = float(np.sqrt(np.mean(np.square(part, dtype=np.float64)))) >= QUIET_RMS
+            if not loud:
                 self.quiet += len(part)
             else:
                 self.quiet = 0
                 self.loud += len(part)
+            first, last = (at + k) // frame, -(-(at + k + len(part)) // frame)
+            if len(self.levels) < last:
+                self.levels.extend(bytes(last - len(self.levels)))
+            if loud:
+                self.levels[first:last] = b"\x01" * (last - first)
         self.current = self._path()
         length = self.time - self.offset
         if (self.quiet >= PAUSE * SAMPLE_RATE and self.loud >= MIN_UTTERANCE * SAMPLE_RATE) or length >= MAX_UTTERANCE:
@@ -96,7 +106,8 @@ class PhoneStream:
     def _path(self) -> list[Phone]:
         out = []
         for seg in self.dec.seg() or []:
-            name = "SIL" if seg.word in NOISE else seg.word
+            quiet = not any(self.levels[max(seg.start_frame, 0):seg.end_frame + 1])
+            name = "SIL" if seg.word in NOISE or quiet else seg.word
             start, end = seg.start_frame * FRAME, (seg.end_frame + 1) * FRAME
             out.append(Phone(name, self.offset + start, self.offset + end, ""))
         return out
@@ -107,6 +118,7 @@ class PhoneStream:
         self.current = []
         self.offset = self.time
         self.loud = 0
+        self.levels = bytearray()
         self.dec.start_utt()
 
 
