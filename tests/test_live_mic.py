@@ -206,6 +206,83 @@ def test_find_input_by_default_index_and_name():
         find_input(None, FakePortAudio([("HDMI 0", 0)]))
 
 
+class FakeStream:
+    """sounddevice's InputStream as MicFeed uses it: the test calls the callback itself."""
+
+    def __init__(self, **kw):
+        self.kw, self.started, self.closed = kw, False, False
+
+    def start(self):
+        self.started = True
+
+    def abort(self):
+        pass
+
+    def close(self):
+        self.closed = True
+
+    def give(self, block: np.ndarray, overflow: bool = False) -> None:
+        class Status:
+            input_overflow = overflow
+
+        self.kw["callback"](block.reshape(len(block), -1).astype(np.float32), len(block), None, Status())
+
+
+def _mic(monkeypatch, channels=1):
+    from faceanim.live.mic import InputDevice, MicFeed
+
+    sd = FakePortAudio([("USB Mic", channels)])
+    sd.InputStream = FakeStream
+    return MicFeed(InputDevice(0, "USB Mic", "ALSA", channels, 48000.0), sd=sd)
+
+
+def _wait(cond, timeout=10.0):
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.01)
+    return cond()
+
+
+def test_mic_feed_hears_blocks_drops_a_backlog_and_says_when_the_device_goes(monkeypatch):
+    """MicFeed on a stand-in for PortAudio: 48 kHz stereo blocks are mixed down, resampled and fed
+    20 ms at a time; a backlog beyond MAX_BACKLOG is dropped and counted; overflows are counted;
+    the stream ended by PortAudio, or silent, ends the feed with an error of our own."""
+    from faceanim.live import mic
+    from faceanim.live.mic import MAX_BACKLOG, MicError
+
+    feed = _mic(monkeypatch, channels=2)
+    assert feed.stream.kw["channels"] == 1 and feed.stream.kw["samplerate"] == 48000.0
+    assert feed.stream.kw["blocksize"] == 480
+    rng = np.random.default_rng(2)
+    backlog = [rng.standard_normal((480, 2)) * 0.1 for _ in range(int(MAX_BACKLOG / 0.01) + 40)]
+    for b in backlog:  # all waiting before the feed starts: more than MAX_BACKLOG behind
+        feed.stream.give(b)
+    feed.stream.give(np.zeros((480, 2)), overflow=True)
+    feed.start()
+    assert _wait(lambda: feed.blocks == len(backlog) + 1)
+    assert feed.stream.started and feed.dropped >= 0.5 * MAX_BACKLOG / 0.02 and feed.overflows == 1
+    heard, dropped = feed.chunks, feed.dropped
+    for _ in range(10):  # a second of sound as it comes, 0.1 s at a time
+        for _ in range(10):
+            feed.stream.give(np.full((480, 2), 0.05))
+        assert _wait(lambda: feed.queue.empty())
+    assert _wait(lambda: feed.chunks >= heard + 49) and feed.dropped == dropped
+    assert feed.error is None and np.all(np.isfinite(feed.curves()))
+    feed.stream.kw["finished_callback"]()  # PortAudio ended the stream: the device is gone
+    assert _wait(lambda: feed.finished)
+    assert isinstance(feed.error, MicError) and "stopped giving sound after" in str(feed.error)
+    feed.stop()
+    assert feed.stream.closed
+
+    monkeypatch.setattr(mic, "NO_SOUND", 0.3)
+    feed = _mic(monkeypatch)
+    feed.start()
+    feed.stream.give(np.zeros(480))
+    assert _wait(lambda: feed.finished)
+    assert isinstance(feed.error, MicError) and "gave no sound for 0.3 s" in str(feed.error)
+    feed.stop()
+
+
 # -- the lip sync through silence and noise ----------------------------------------------------------
 def test_lip_sync_through_minutes_of_silence_and_clipping_stays_bounded_and_at_rest():
     """Three minutes of a quiet room (noise 50 dB under full scale), then 20 s of noise clipped at
