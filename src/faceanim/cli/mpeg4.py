@@ -73,13 +73,13 @@ def _say_animation(args, face, phones, wav):
     (:mod:`faceanim.drivers.speech.lipsync`) with the brows and blinks of the voice's prosody
     (:mod:`faceanim.drivers.speech.prosody`) and ``--emotion`` phrase by phrase, Rhubarb cues of the
     phones, MPEG-4's visemes with the same prosody and emotion as FAPs (Lee et al.; made only for a
-    .fap), the sound (written beside a .glb
-    or cue file, or the recording named)."""
+    .fap), the sound (written beside a .glb or cue file, or the recording named)."""
     from faceanim.drivers.cues import phone_cues
     from faceanim.drivers.speech.lipsync import lipsync_curves
     from faceanim.drivers.speech.prosody import with_prosody
     from faceanim.export import Animation
     from faceanim.io.audio import read_audio
+    from faceanim.perform import EYE_CONTROLS, eye_angles
     from faceanim.standards.arkit import APPLE_NAMES
 
     names = list(APPLE_NAMES)  # Live Link Face's order
@@ -95,8 +95,6 @@ def _say_animation(args, face, phones, wav):
             extra += emotion_actions(prosody, args.expression, args.intensity, max(p.end for p in phones))
         # a .fap file is for any face: MPEG-4's neutral face has closed lips, so no gap to close
         return speech_stream(0.0, phones, args.fps, extra, name=Path(args.output).stem)
-
-    from faceanim.perform import EYE_CONTROLS, eye_angles
 
     eyes = eye_angles(curves[:, [names.index(n) for n in EYE_CONTROLS[2:]]])  # the looks away, as a CSV's angles
     out = Path(args.output)
