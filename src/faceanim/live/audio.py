@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import threading
 import time
+from abc import ABC, abstractmethod
 
 import numpy as np
 
@@ -50,7 +51,7 @@ def read_sound(path) -> np.ndarray:
     return x
 
 
-class SoundFeed:
+class SoundFeed(ABC):
     """A sound fed into a lip sync and the voice's prosody in its own thread, 20 ms at a time:
     :meth:`curves` is the face now (the (52,) ARKit curves in Live Link order: the mouth, the
     brows, the blinks and the looks away; 0 elsewhere), :meth:`head` the head's angles.
@@ -87,8 +88,9 @@ class SoundFeed:
         except Exception as exc:  # noqa: BLE001 -- reported by the run (a FaceAnimError says what)
             self.error = exc
 
+    @abstractmethod
     def _run(self) -> None:
-        raise NotImplementedError
+        """Feed the sound, chunk by chunk, with :meth:`_feed` until it ends or :meth:`stop`."""
 
     def _feed(self, samples: np.ndarray) -> None:
         with self.lock:
