@@ -637,6 +637,38 @@ def test_live_command_with_sound_alone(tmp_path):
     assert not (tmp_path / "x.csv").exists()
 
 
+@needs_speech
+def test_live_command_carries_an_emotion_phrase_by_phrase(tmp_path):
+    """``live --audio --emotion joy``: the smile of joy's ARKit mix at 0.6 x the phrase's multiplier
+    (0.5..1.5) while the voice speaks, rising from 0 as it begins; the mouth's own curves and the brows stay the
+    voice's. Refused before anything is written: an unknown emotion, --emotion with a video,
+    --intensity alone."""
+    from faceanim.drivers.speech.lipsync import expression_mix
+    from faceanim.drivers.speech.prosody import EMOTION_RANGE
+
+    csv = tmp_path / "joy.csv"
+    r = _live("--audio", str(SPEECH / "clip-0870.wav"), "--emotion", "joy", "--to", f"csv:{csv}")
+    assert r.returncode == 0, r.stderr
+    take = read_arkit_csv(csv)
+    smile = take.weights[:, ARKIT_NAMES.index("MouthSmileLeft")]
+    mix = expression_mix("joy")["mouthSmileLeft"] * 0.6
+    assert smile[0] < 0.2 * mix and np.all(np.diff(smile[:6]) >= 0)  # it rises from 0 as the voice begins
+    held = smile[int(1.0 * 30):]
+    assert held.min() >= EMOTION_RANGE[0] * mix - 1e-3 and held.max() <= EMOTION_RANGE[1] * mix + 1e-3
+    assert np.ptp(held) > 0.1 * mix  # it changes phrase by phrase
+    assert take.weights[:, ARKIT_NAMES.index("JawOpen")].max() > 0.3
+    assert take.weights[:, ARKIT_NAMES.index("EyeBlinkLeft")].max() > 0.9
+    for args, phrase in ((["--audio", str(SPEECH / "clip-0870.wav"), "--emotion", "glee"], "glee"),
+                         (["--video", str(tmp_path / "a.mp4"), "--audio", str(SPEECH / "clip-0870.wav"),
+                           "--emotion", "joy"], "--emotion"),
+                         (["--audio", str(SPEECH / "clip-0870.wav"), "--intensity", "1"], "--intensity"),
+                         (["--audio", str(SPEECH / "clip-0870.wav"), "--emotion", "joy", "--intensity", "nan"],
+                          "--intensity")):
+        r = _live(*args, "--to", f"csv:{tmp_path / 'x.csv'}")
+        assert r.returncode == 2 and phrase in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "x.csv").exists()
+
+
 def test_live_refuses_an_avatar_without_arkit_names(tmp_path):
     from faceanim.io.gltf import write_gltf
 

@@ -317,3 +317,36 @@ def test_the_eyes_look_away_as_a_long_phrase_begins_and_come_back_before_it_ends
     for name, col in (("yaw_l_eyeball", 0), ("pitch_l_eyeball", 1), ("yaw_r_eyeball", 3), ("pitch_r_eyeball", 4)):
         np.testing.assert_allclose(stream.values[:, fap(name).number - 1] * 1e-5, eyes[:, col], atol=2e-3)
     assert eyes[int(1.0 * fps), 0] > 0.1 and eyes[int(3.5 * fps), 0] < -0.1  # to the left, then the right
+
+
+def test_live_emotion_follows_each_phrase_as_the_offline_intensity_does():
+    """``live --emotion``'s intensity multiplier, heard 20 ms at a time on a real voice said loud,
+    then quiet, then loud: 0 before anyone speaks; the quiet phrase shows less of the emotion than
+    either loud one; and the last phrase, judged against the two before it, ends where the offline
+    ``emotion_intensity`` (which knows all three) has it."""
+    import soundfile
+
+    from faceanim.drivers.speech.prosody import EMOTION_RANGE, LiveProsody, emotion_intensity, phrases
+    from conftest import DATA, need
+
+    path = need(DATA / "speech-librivox" / "clip-0880.wav")
+    x, rate = soundfile.read(str(path))
+    gap = np.zeros(int(0.6 * rate))
+    s = np.concatenate([gap, x, gap, 0.25 * x, gap, x, gap])
+    s = s + 1e-4 * np.random.default_rng(0).standard_normal(len(s))  # a quiet room, not digital silence
+    p = analyse(s, rate)
+    spans = phrases(p)
+    assert len(spans) == 3
+    offline = emotion_intensity(p, 1.0, 100.0, int(len(s) / rate * 100))
+    live, level = LiveProsody(rate), []
+    for k in range(0, len(s), 320):
+        live.feed(s[k:k + 320])
+        level.append(live.emotion_level)
+    level = np.array(level)
+    at = lambda t: level[int(t / 0.02) - 1]  # noqa: E731 -- after the chunk that ends at t
+    assert np.all(level[: int(0.55 / 0.02)] == 0.0)
+    ends = [at(b) for _, b in spans]
+    assert ends[1] < ends[0] and ends[1] < ends[2]
+    assert all(EMOTION_RANGE[0] <= e <= EMOTION_RANGE[1] for e in ends)
+    assert ends[2] == pytest.approx(offline[int(spans[2][1] * 100) - 1], abs=0.1)
+    assert offline[int(spans[1][1] * 100) - 1] < offline[int(spans[0][1] * 100) - 1]  # the oracle agrees

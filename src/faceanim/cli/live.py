@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from faceanim.cli.commands import HELP
-from faceanim.cli.common import CommandError, _arg_type, check_outputs
+from faceanim.cli.common import INTENSITY, CommandError, _arg_type, check_outputs
 from faceanim.errors import shown
 
 
@@ -28,6 +28,15 @@ def _cmd_live(args) -> None:
     if args.mouth is not None and not (picture and heard):
         raise CommandError("--mouth chooses between a video's mouth and a sound's; give --audio or --mic with "
                            "--video or --camera")
+    if args.intensity is not None and args.emotion is None:
+        raise CommandError("--intensity is --emotion's; give --emotion NAME too")
+    if args.emotion is not None:
+        if not heard or picture:
+            raise CommandError("--emotion colours a face the voice drives alone; give --audio or --mic without "
+                               "--video or --camera (a performer's face shows their own)")
+        from faceanim.drivers.speech.lipsync import expression_mix
+
+        expression_mix(args.emotion)  # an unknown name is refused before anything is opened
     if heard:
         from faceanim.extras import require
 
@@ -69,6 +78,8 @@ def _cmd_live(args) -> None:
         from faceanim.live.mic import MicFeed, find_input
 
         sound = MicFeed(find_input(args.mic))  # opened now: a device that cannot record is refused here
+    if args.emotion is not None:
+        sound.carry(args.emotion, 0.6 if args.intensity is None else args.intensity)
     if not picture:
         from faceanim.live.audio import AudioSource
 
@@ -137,6 +148,12 @@ def register(sub) -> None:
     p.add_argument("--mouth", choices=("audio", "video", "both"),
                    help="with --audio or --mic and a video or camera: whose mouth the avatar has (default: both, "
                         "averaged; the lips shut when either shuts them)")
+    p.add_argument("--emotion", metavar="EMOTION",
+                   help="with --audio or --mic alone: an emotion carried while speaking (joy, sadness, surprise, "
+                        "fear, anger, disgust), phrase by phrase as it is heard: a louder, livelier phrase shows "
+                        "more of it")
+    p.add_argument("--intensity", type=INTENSITY, metavar="I",
+                   help="intensity of --emotion (0..2, default 0.6), the mean over the phrases")
     p.add_argument("--to", action="append", metavar="SINK", required=True,
                    help="where the curves go (repeatable): vmc://HOST:PORT, livelink://HOST:PORT, file:PATH "
                         "(.csv .tsv .json .glb) or viewer[:PORT] (the faceanim view page, 8760 by default)")

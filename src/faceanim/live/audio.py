@@ -54,7 +54,8 @@ def read_sound(path) -> np.ndarray:
 class SoundFeed(ABC):
     """A sound fed into a lip sync and the voice's prosody in its own thread, 20 ms at a time:
     :meth:`curves` is the face now (the (52,) ARKit curves in Live Link order: the mouth, the
-    brows, the blinks and the looks away; 0 elsewhere), :meth:`head` the head's angles.
+    brows, the blinks and the looks away, and an emotion if it :meth:`carry`-ies one; 0
+    elsewhere), :meth:`head` the head's angles.
     ``error``: why it stopped early (a :class:`~faceanim.errors.FaceAnimError`: a microphone
     gone), else None; ``chunks``: 20 ms chunks fed so far. Subclasses feed in :meth:`_run`
     (:class:`AudioFeed`, :class:`faceanim.live.mic.MicFeed`)."""
@@ -71,6 +72,15 @@ class SoundFeed(ABC):
         self._thread: threading.Thread | None = None
         self.error: Exception | None = None
         self.chunks = 0
+        self.emotion: np.ndarray | None = None  # (52,) an emotion's ARKit mix at its intensity, or None
+
+    def carry(self, emotion: str, intensity: float) -> None:
+        """Carry ``emotion`` (an expression's name, :func:`~faceanim.drivers.speech.lipsync.expression_mix`)
+        at ``intensity`` while speaking, phrase by phrase (:attr:`LiveProsody.emotion_level`)."""
+        from faceanim.drivers.speech.lipsync import expression_mix
+
+        mix = expression_mix(emotion)
+        self.emotion = float(intensity) * np.array([mix.get(n, 0.0) for n in APPLE])
 
     @property
     def duration(self) -> float:
@@ -102,9 +112,12 @@ class SoundFeed(ABC):
         with self.lock:
             mouth = self.lipsync.curves()
             upper = self.prosody.curves(APPLE)
+            level = self.prosody.emotion_level
         out = np.zeros(len(ARKIT_NAMES))
         out[MOUTH] = mouth[MOUTH]
         out[UPPER] = upper[UPPER]
+        if self.emotion is not None:
+            out = np.clip(out + level * self.emotion, 0.0, 1.0)
         return out
 
     def head(self) -> np.ndarray:

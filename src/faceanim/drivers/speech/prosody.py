@@ -396,6 +396,7 @@ LIVE_LEAN = 0.5  # seconds a lean takes to come and to go
 LIVE_GAZE_AFTER = 0.5  # seconds a phrase has lasted when the eyes look away (a short one never does)
 LIVE_QUIET = -60.0  # dBFS: quieter is never speech
 LIVE_RANGE = 10.0  # dB: the loud speech over the noise floor at least, for any sound to be speech
+LIVE_PHRASES = 20  # past phrases a live phrase's arousal is judged against
 
 
 class LiveProsody:
@@ -413,7 +414,12 @@ class LiveProsody:
     - a pause of :data:`PAUSE_MIN` ends a phrase: the head nods then, and the lean of the phrase
       (to alternate sides, phrase by phrase) eases back; the head rises with the pitch;
     - once a phrase has lasted :data:`LIVE_GAZE_AFTER` the eyes look away (sides alternating), for
-      at most :data:`GAZE_LONGEST`, and come back when it ends.
+      at most :data:`GAZE_LONGEST`, and come back when it ends;
+    - :attr:`emotion_level`, an emotion's intensity multiplier phrase by phrase, as
+      :func:`emotion_intensity`'s: 1 + :data:`EMOTION_SPREAD` x the phrase's arousal so far (its
+      mean level and pitch range so far, standardised over it and the last :data:`LIVE_PHRASES`
+      phrases), within :data:`EMOTION_RANGE`, held through the pause after it, rising from 0 at
+      the first phrase over :data:`EMOTION_RAMP`.
 
     Memory stays bounded however long the stream: levels of the last :data:`LIVE_HISTORY` seconds
     and events of the last :data:`LIVE_KEEP`. The same samples in the same chunks give the same face.
@@ -442,6 +448,11 @@ class LiveProsody:
         self.nods: list[float] = []
         self.leans: list[tuple[float, float | None, float]] = []  # (start, end, signed tilt)
         self.looks: list[list] = []  # [start, end, side] of the looks away
+        self.phrase_level = [0.0, 0]  # this phrase's summed level (dB) and 10 ms steps
+        self.phrase_spread = 0.0  # its pitch range so far (semitones, 10th to 90th percentile)
+        self.past_phrases: list[tuple[float, float]] = []  # (mean level, pitch range) of the last ones
+        self.emotion_target = 1.0
+        self.emotion_now = 0.0  # the multiplier, eased to its target (0 before the first phrase)
 
     @property
     def time(self) -> float:
@@ -482,12 +493,16 @@ class LiveProsody:
                 self.phrase_index += 1
                 self.phrase = (now - STEP, None)
                 self.phrase_pitch = []
+                self.phrase_level, self.phrase_spread = [0.0, 0], 0.0
                 self.leans.append((now - STEP, None, TILT if self.phrase_index % 2 == 0 else -TILT))
+            self.phrase_level[0] += level
+            self.phrase_level[1] += 1
         else:
             self.silent_for += STEP
             if self.phrase is not None and self.silent_for >= PAUSE_MIN:  # the phrase is over
                 end = now - self.silent_for
                 self.phrase = None
+                self.past_phrases = [*self.past_phrases, self._phrase_row()][-LIVE_PHRASES:]
                 self.nods.append(now)
                 if self.leans and self.leans[-1][1] is None:
                     self.leans[-1] = (self.leans[-1][0], end, self.leans[-1][2])
@@ -505,6 +520,31 @@ class LiveProsody:
             self.looks[-1][1] = now
         if now - self.last_blink >= BLINK_MAX_GAP:
             self._blink(now)
+        self._emotion_step()
+
+    def _phrase_row(self) -> tuple[float, float]:
+        total, steps = self.phrase_level
+        return (total / max(steps, 1), self.phrase_spread)
+
+    def _emotion_step(self) -> None:
+        if self.speaking:  # in a pause the last phrase's is held
+            rows = np.array([*self.past_phrases, self._phrase_row()])
+            z = 0.0
+            if len(rows) >= 2:
+                sd = rows.std(axis=0)
+                z = float(np.mean(np.where(sd > 1e-9, (rows[-1] - rows.mean(axis=0)) / np.where(sd > 1e-9, sd, 1.0), 0.0)))
+            lo, hi = EMOTION_RANGE
+            self.emotion_target = float(np.clip(1.0 + EMOTION_SPREAD * z, lo, hi))
+        if self.phrase_index < 0:
+            return
+        ease = min(STEP / EMOTION_RAMP, 1.0)  # per step: 0 to 1 (the first rise) over EMOTION_RAMP
+        self.emotion_now += float(np.clip(self.emotion_target - self.emotion_now, -ease, ease))
+
+    @property
+    def emotion_level(self) -> float:
+        """An emotion's intensity multiplier now (class docstring): 0 before anyone speaks, then
+        within :data:`EMOTION_RANGE`."""
+        return self.emotion_now
 
     def _blink(self, now: float) -> None:
         self.blinks.append(now)
@@ -533,6 +573,9 @@ class LiveProsody:
             voiced = f0 > 0 and self.speaking
             if voiced:
                 self.phrase_pitch.append(12.0 * np.log2(f0 / 100.0))
+                if len(self.phrase_pitch) >= 5 and len(self.phrase_pitch) % 10 == 5:
+                    q10, q90 = np.percentile(self.phrase_pitch, [10, 90])
+                    self.phrase_spread = float(q90 - q10)
             if voiced and len(self.phrase_pitch) >= 5:
                 st = self.phrase_pitch[-1] - float(np.median(self.phrase_pitch))
                 self.smooth_st = st if not np.isfinite(self.smooth_st) else self.smooth_st + alpha * (st - self.smooth_st)
