@@ -562,6 +562,22 @@ def test_live_lip_sync_against_the_offline_alignment():
 
 
 @needs_speech
+def test_quiet_phones_are_silence_but_a_quiet_closure_stays_shut():
+    """The lip sync's quiet gate: a phone heard where every block under it was quiet (room hiss the
+    decoder takes for f or v) is silence, but a quiet p, b or m keeps its name (a stop's closure
+    is silent by nature: the lips shut); loud phones are themselves."""
+    from types import SimpleNamespace
+
+    from faceanim.drivers.speech.stream import PhoneStream
+
+    seg = lambda word, a, b: SimpleNamespace(word=word, start_frame=a, end_frame=b)  # noqa: E731
+    stream = PhoneStream()
+    stream.dec = SimpleNamespace(seg=lambda: [seg("F", 0, 9), seg("M", 10, 19), seg("AA", 20, 29), seg("B", 30, 39),
+                                              seg("V", 40, 49), seg("+NSN+", 50, 59)])
+    stream.levels = bytearray([0] * 20 + [1] * 20 + [0] * 20)  # frames 20-39 loud, the rest quiet
+    assert [p.phone for p in stream._path()] == ["SIL", "M", "AA", "B", "SIL", "SIL"]
+
+
 def test_live_lip_sync_is_deterministic_and_restarts_at_pauses():
     from faceanim.drivers.speech.phonemes import SAMPLE_RATE
     from faceanim.drivers.speech.stream import MIN_UTTERANCE, PAUSE, LiveLipSync

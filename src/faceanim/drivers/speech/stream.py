@@ -9,7 +9,8 @@ and a new one started at a pause (:data:`PAUSE` of quiet audio after at least :d
 of sound) and after :data:`MAX_UTTERANCE` at the latest, so the decoder's work per chunk stays
 small however long the stream runs (and what is kept, however long it has been quiet). A phone
 heard where every 20 ms block under it was quiet (under :data:`QUIET_RMS`: a room's hiss, which
-the decoder hears as f or v) is silence: a microphone in a quiet room keeps the mouth shut.
+the decoder hears as f or v) is silence: a microphone in a quiet room keeps the mouth shut; but a
+quiet p, b or m (:data:`CLOSURES`) stays itself, its closure being silent by nature.
 
 :class:`LiveLipSync` turns the phones into the face's mouth at the present moment with the same
 targets and co-articulation as ``faceanim say`` (:func:`~faceanim.drivers.speech.lipsync.lipsync_curves`):
@@ -107,7 +108,8 @@ class PhoneStream:
         out = []
         for seg in self.dec.seg() or []:
             quiet = not any(self.levels[max(seg.start_frame, 0):seg.end_frame + 1])
-            name = "SIL" if seg.word in NOISE or quiet else seg.word
+            # a quiet p, b or m is the lips shut, as a stop's closure is (it is silent by nature): kept
+            name = "SIL" if seg.word in NOISE or (quiet and seg.word not in CLOSURES) else seg.word
             start, end = seg.start_frame * FRAME, (seg.end_frame + 1) * FRAME
             out.append(Phone(name, self.offset + start, self.offset + end, ""))
         return out
