@@ -3,7 +3,8 @@
 For each talking-head VIDEO (with its sound):
 
 1. the performer: ``faceanim perform VIDEO -o P.csv`` tracks the video (ARKit's 52 curves and the
-   head's angles per frame, the same tracker users run);
+   head's angles per frame, the same tracker users run; ``--tracker mediapipe``: MediaPipe's own
+   52 scores instead, a second reading of the brows and lids);
 2. ours: ``faceanim say --audio SOUND -o S.csv`` on the video's own sound alone (no picture);
 3. whether the sound is the performer's own (:func:`sound_sync`: the tracked jaw follows the lip
    sync of the sound, at some offset under a second); clips whose sound is music or a dub are
@@ -21,7 +22,11 @@ For each talking-head VIDEO (with its sound):
    - the ceiling of any timing from the speech: the performer's own syllables, the peaks of their
      tracked jaw opening (:data:`JAW_PROMINENCE`, as many as their brow raises and nods), moved
      by the one offset (within 0.5 s) that scores best on the ``--tune`` clips, taken as the
-     events. The sound cannot time the face better than the mouth that makes it does.
+     events. The sound cannot time the face better than the mouth that makes it does;
+   - a model fitted to the performers: a ridge regression from the sound (its level, the level's
+     rise, the pitch in semitones and voicing, each 0.5 s either side) to the head's pitch, its
+     speed and the brows' mean (slow drifts removed), fitted on every clip but one and scored
+     (Pearson r) on the one left out.
 
 Clips named in ``--tune`` are the ones the constants were chosen on; the others are held out and
 reported apart. Run (the clips with sound: d10 and d14 in the shared data; LivePortrait's other
@@ -115,6 +120,52 @@ def ceiling(tuned: list[dict], held: list[dict], within: float) -> None:
               f"(chance {luck / max(total, 1):.2f}), syllables per theirs {ours / max(total, 1):.2f}")
 
 
+CONTEXT = range(-15, 16, 3)  # frames of the sound either side a ridge regression sees (0.5 s)
+RIDGE = 10.0
+
+
+def sound_features(prosody, n: int, lag: float) -> np.ndarray:
+    """(n, 45) the sound about each picture frame: level (dB under the loud speech, -40 in pauses),
+    its rise, the pitch (semitones over the median, 0 unvoiced) and voicing, at :data:`CONTEXT`."""
+    t = np.arange(n) / FPS - lag  # the picture's time on the sound's
+    level = np.where(prosody.speaking, prosody.level - np.percentile(prosody.level, 95), -40.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        st = 12.0 * np.log2(prosody.pitch / np.nanmedian(prosody.pitch))
+    cols = []
+    for sig in (level, 10.0 * np.gradient(_smooth(level, 3.0)), np.where(np.isfinite(st), st, 0.0),
+                prosody.speaking.astype(float)):
+        at = np.interp(t, prosody.times, sig, left=0.0, right=0.0)
+        cols += [np.roll(at, k) for k in CONTEXT]
+    return np.c_[np.array(cols).T, np.ones(n)]
+
+
+def motion_targets(take) -> dict[str, np.ndarray]:
+    """The performer's head pitch, its speed and brows' mean per frame, slow drifts (1 s) removed."""
+    pitch = _smooth(take.head[:, 1])
+    brow = _smooth(take.weights[:, BROWS].mean(axis=1))
+    return {"head pitch": pitch - _smooth(pitch, FPS), "its speed": np.gradient(pitch),
+            "brows": brow - _smooth(brow, FPS)}
+
+
+def fitted_model(rows: list[dict]) -> None:
+    """Print the leave-one-clip-out r of a ridge regression from the sound to the performers'
+    head pitch, its speed and brows (module docstring)."""
+    if len(rows) < 3:
+        return
+    print("\na model fitted to the performers (ridge, leave one clip out): r on the clip left out")
+    for key in rows[0]["motion"]:
+        rs = []
+        for k, held in enumerate(rows):
+            rest = [r for j, r in enumerate(rows) if j != k]
+            a = np.vstack([r["sound"] for r in rest])
+            y = np.concatenate([(r["motion"][key] - r["motion"][key].mean()) / (r["motion"][key].std() + 1e-9)
+                                for r in rest])
+            w = np.linalg.solve(a.T @ a + RIDGE * np.eye(a.shape[1]), a.T @ y)
+            guess, truth = held["sound"] @ w, held["motion"][key]
+            rs.append(float(np.corrcoef(guess, truth)[0, 1]) if np.std(guess) > 0 and np.std(truth) > 0 else np.nan)
+        print(f"{key}: median r {np.nanmedian(rs):.2f} ({', '.join(f'{r:.2f}' for r in rs)})")
+
+
 def recall(theirs: np.ndarray, ours: np.ndarray, within: float) -> tuple[int, int]:
     """(how many of ``theirs`` have one of ``ours`` within ``within`` s, how many there are)."""
     if not len(theirs):
@@ -171,7 +222,7 @@ def _run(cmd: list[str]) -> None:
         sys.exit(f"eval_prosody: {' '.join(cmd[:3])} ... failed: {done.stderr.strip().splitlines()[-1:]}")
 
 
-def clip(video: Path, work: Path, within: float) -> dict:
+def clip(video: Path, work: Path, within: float, tracker: str = "solve") -> dict:
     import soundfile as sf
 
     from faceanim.drivers.speech.prosody import analyse
@@ -179,7 +230,8 @@ def clip(video: Path, work: Path, within: float) -> dict:
 
     name = video.stem
     work.mkdir(parents=True, exist_ok=True)
-    wav, perf_csv, say_csv = work / f"{name}.wav", work / f"{name}.perf.csv", work / f"{name}.say.csv"
+    wav, say_csv = work / f"{name}.wav", work / f"{name}.say.csv"
+    perf_csv = work / (f"{name}.perf.csv" if tracker == "solve" else f"{name}.perf-{tracker}.csv")
     faceanim = [sys.executable, "-m", "faceanim"]
     if not wav.exists():
         folder = work / f"{name}.sound"
@@ -189,7 +241,7 @@ def clip(video: Path, work: Path, within: float) -> dict:
             sys.exit(f"eval_prosody: {video.name} has no sound; give clips of people talking")
         found.rename(wav)
     if not perf_csv.exists():
-        _run([*faceanim, "perform", str(video), "-o", str(perf_csv), "--quiet"])
+        _run([*faceanim, "perform", str(video), "--tracker", tracker, "-o", str(perf_csv), "--quiet"])
     if not say_csv.exists():
         _run([*faceanim, "say", "--audio", str(wav), "--fps", f"{FPS:g}", "-o", str(say_csv), "--quiet"])
     perf, ours = read_arkit_csv(perf_csv).resample(FPS), read_arkit_csv(say_csv).resample(FPS)
@@ -206,7 +258,8 @@ def clip(video: Path, work: Path, within: float) -> dict:
     phrases = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a > 0.3]
     brow_r, pitch_r = phrase_correlation(perf, ours, phrases)
     out = {"clip": name, "seconds": duration, "brow_r": brow_r, "pitch_r": pitch_r, "sync": (r, lag),
-           "theirs": theirs, "syllables": syllables(perf)}
+           "theirs": theirs, "syllables": syllables(perf), "sound": sound_features(prosody, n, lag),
+           "motion": motion_targets(perf)}
     for kind in ("brow", "nod", "blink"):
         hit, total = recall(theirs[kind], mine[kind], within)
         out[kind] = (hit, total, len(mine[kind]), chance(theirs[kind], mine[kind], within, duration))
@@ -240,9 +293,11 @@ def main(argv=None) -> None:
     ap.add_argument("--tune", default="", help="comma-separated clip names the constants were chosen on")
     ap.add_argument("--work", type=Path, default=Path("eval_prosody_work"))
     ap.add_argument("--within", type=float, default=0.3, help="seconds an event of ours may be off (0.3)")
+    ap.add_argument("--tracker", choices=("solve", "mediapipe"), default="solve",
+                    help="what reads the performer's face (perform --tracker; default solve)")
     args = ap.parse_args(argv)
     tune = {t for t in args.tune.split(",") if t}
-    rows = [clip(v, args.work, args.within) for v in args.videos]
+    rows = [clip(v, args.work, args.within, args.tracker) for v in args.videos]
     for r in rows:
         print(f"{r['clip']}: the performer's jaw follows the sound's lip sync r = {r['sync'][0]:.2f} at "
               f"{r['sync'][1]:+.2f} s" + ("" if r["sync"][0] >= SYNC_R else " (not the performer's own sound: left out)"))
@@ -250,6 +305,7 @@ def main(argv=None) -> None:
     _table([r for r in rows if r["clip"] in tune], "tuned on")
     _table([r for r in rows if r["clip"] not in tune], "held out")
     ceiling([r for r in rows if r["clip"] in tune], [r for r in rows if r["clip"] not in tune], args.within)
+    fitted_model(rows)
 
 
 if __name__ == "__main__":
