@@ -247,7 +247,7 @@ def test_arkit_play_onto_a_whole_vroid_avatar(tmp_path):
         [m.get("extras", {}).get("targetNames") for m in a["meshes"]]
     assert len(b["animations"]) == len(a.get("animations", [])) + 1
     anim = b["animations"][-1]
-    face = {b["nodes"][c["target"]["node"]]["mesh"] for c in anim["channels"]}
+    face = {b["nodes"][c["target"]["node"]]["mesh"] for c in anim["channels"] if c["target"]["path"] == "weights"}
     names = b["meshes"][face.pop()]["extras"]["targetNames"]
     gltf = pygltflib.GLTF2().load_binary(str(out))
     w = accessor(gltf, anim["samplers"][0]["output"]).reshape(20, len(names))
@@ -264,7 +264,8 @@ def test_arkit_play_onto_a_whole_vroid_avatar(tmp_path):
 @pytest.mark.skipif(not shutil.which("espeak-ng"), reason="espeak-ng is not installed (scripts/setup.sh installs it)")
 def test_say_onto_an_avatars_own_targets(tmp_path):
     """say --face avatar.glb with ARKit-named targets: the avatar with the speech as one more
-    animation on its own jawOpen (p, b, m shut: mouthClose reaches jawOpen), the sound beside it."""
+    animation on its own jawOpen (p, b, m shut: mouthClose reaches jawOpen), its head bone turned
+    by the voice's nods and leans, the sound beside it."""
     from faceanim.io.gltf import glb_json
     from faceanim.io.scene import read_scene
 
@@ -279,3 +280,95 @@ def test_say_onto_an_avatars_own_targets(tmp_path):
     assert jaw.max() > 0.2 and np.any((close > 0.1) & (np.abs(close - jaw) < 0.02))
     assert doc["scenes"][doc.get("scene", 0)]["extras"]["audio"] == "say.wav" and (tmp_path / "say.wav").is_file()
     assert len(read_scene(out).meshes()) == len(read_scene(VROID).meshes())
+    # and the voice's head motion (a nod at the phrase's end, a lean) turns its Head bone from rest
+    from scipy.spatial.transform import Rotation
+
+    turn = next(c for c in anim["channels"] if c["target"]["path"] == "rotation")
+    assert doc["nodes"][turn["target"]["node"]]["name"] == "Head"
+    q = accessor(pygltflib.GLTF2().load_binary(str(out)), anim["samplers"][turn["sampler"]]["output"])
+    rest = Rotation.from_quat(doc["nodes"][turn["target"]["node"]]["rotation"])
+    away = (rest.inv() * Rotation.from_quat(q)).magnitude()
+    assert away[0] < 1e-3 and 0.03 < away.max() < 0.15
+
+
+def _posed_eyes(path: Path, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(left eye, right eye, head pivot) in world space at ``frame`` of the file's last animation:
+    its rotation channel decoded by hand (gltf_reader), put on the node, and the face mesh skinned
+    by the glTF spec's joint matrices (faceanim.io.scene's skinning of the bind pose, with the
+    posed node matrices); each eye: the centroid of what its eyeBlink target moves."""
+    from faceanim.io.gltf import glb_json
+    from faceanim.io.scene import _global_matrices, read_scene
+
+    doc = glb_json(path)
+    anim = doc["animations"][-1]
+    turn = [c for c in anim["channels"] if c["target"]["path"] == "rotation"]
+    assert len(turn) == 1
+    q = accessor(pygltflib.GLTF2().load_binary(str(path)), anim["samplers"][turn[0]["sampler"]]["output"])
+    scene = read_scene(path)
+    node = turn[0]["target"]["node"]
+    scene._json["nodes"][node] = {**scene._json["nodes"][node], "rotation": [float(x) for x in q[frame]]}
+    scene._globals = _global_matrices(scene._json, scene._bad)
+    scene._cache.clear()
+    mi = next(m.index for m in scene.meshes() if "eyeBlinkLeft" in m.target_names)
+    world = scene._world_positions(mi)
+    blink = scene.targets(mi, ["eyeBlinkLeft", "eyeBlinkRight"])
+    left, right = (world[np.linalg.norm(blink[k], axis=1) > 1e-6].mean(0) for k in ("eyeBlinkLeft", "eyeBlinkRight"))
+    return left, right, scene._globals[node][:3, 3]
+
+
+@pytest.mark.skipif(not VROID.exists(), reason="needs ../shared/data/avatars/vroid-sample.glb")
+def test_the_takes_head_turns_a_vroid_avatars_head_bone(tmp_path):
+    """arkit play --face VROID: the take's head angles turn the avatar's Head bone about its pivot,
+    as seen on the skinned face (an oracle that knows nothing of the avatar's facing: its own
+    eyes): rest at 0; a nod down of 0.3 rad turns the eyes 0.3 rad about the pivot, downward and
+    not sideways; a turn to the avatar's left takes both eyes towards its left eye's side; a tilt
+    to its right puts its right eye lower than its left."""
+    from faceanim.io.arkit_csv import write_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
+
+    head = np.zeros((4, 3))
+    head[1, 1], head[2, 0], head[3, 2] = 0.3, 0.3, 0.3  # a nod down, a turn to its left, a tilt to its right
+    write_arkit_csv(tmp_path / "take.csv", np.zeros((4, len(ARKIT_NAMES))), 30.0, head)
+    out = tmp_path / "vroid.glb"
+    assert run(["arkit", "play", tmp_path / "take.csv", "--face", VROID, "--fps", "30", "-o", out]) == 0
+    rest_l, rest_r, pivot = _posed_eyes(out, 0)
+    from faceanim.io.scene import read_scene
+
+    bind = read_scene(VROID)
+    mi = next(m.index for m in bind.meshes() if "eyeBlinkLeft" in m.target_names)
+    blink = bind.targets(mi, ["eyeBlinkLeft"])["eyeBlinkLeft"]
+    np.testing.assert_allclose(rest_l, bind._world_positions(mi)[np.linalg.norm(blink, axis=1) > 1e-6].mean(0),
+                               atol=1e-6)  # frame 0: the bind pose
+    mid = 0.5 * (rest_l + rest_r) - pivot
+    side = rest_l - rest_r  # towards the avatar's left
+    side[1] = 0.0
+    side /= np.linalg.norm(side)
+    left, right, _ = _posed_eyes(out, 1)
+    nod = 0.5 * (left + right) - pivot
+    angle = np.arccos(np.clip(nod @ mid / np.linalg.norm(nod) / np.linalg.norm(mid), -1, 1))
+    assert angle == pytest.approx(0.3, abs=0.01) and nod[1] < mid[1] - 0.01
+    assert abs((nod - mid) @ side) < 1e-3
+    left, right, _ = _posed_eyes(out, 2)
+    assert (0.5 * (left + right) - pivot - mid) @ side > 0.01
+    left, right, _ = _posed_eyes(out, 3)
+    assert right[1] < left[1] - 0.01
+
+
+@pytest.mark.skipif(not VROID.exists(), reason="needs ../shared/data/avatars/vroid-sample.glb")
+def test_a_rotation_channel_is_refused_on_a_node_it_cannot_turn(tmp_path):
+    """write_scene's rotation channels: a node that is not there, quaternions that are not unit or
+    not one per key: refused, one line, nothing written; the avatar's head bone is VRoid's Head."""
+    from faceanim.avatar import head_bone
+    from faceanim.errors import MeshError
+    from faceanim.io.scene import read_scene, write_scene
+
+    scene = read_scene(VROID)
+    bone = head_bone(scene)
+    assert scene._json["nodes"][bone]["name"] == "Head"
+    unit = np.tile([0.0, 0.0, 0.0, 1.0], (3, 1))
+    for rotations, phrase in (({10_000: unit}, "node"), ({bone: 2 * unit}, "unit"), ({bone: unit[:2]}, "(3, 4)"),
+                              ({bone: np.full((3, 4), np.nan)}, "unit")):
+        with pytest.raises(MeshError, match=phrase.replace("(", r"\(").replace(")", r"\)")):
+            write_scene(scene, tmp_path / "x.glb", {}, animation={"times": np.arange(3) / 30.0, "weights": {},
+                                                                  "rotations": rotations})
+    assert not (tmp_path / "x.glb").exists()

@@ -230,10 +230,92 @@ def is_avatar(path) -> bool:
 
 @dataclass
 class AvatarPlay:
-    """What :func:`play_on_avatar` drove: per mesh name, the ARKit curves that found a target."""
+    """What :func:`play_on_avatar` drove: per mesh name, the ARKit curves that found a target; the
+    head bone turned (its node's name), or None."""
 
     driven: dict
     frames: int
+    head_bone: str | None = None
+
+
+HEAD_BONE_NAMES = ("head", "j_bip_c_head", "mixamorig:head", "bip01 head", "bip001 head", "cc_base_head")
+FACING_SAMPLE = ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "mouthSmileLeft", "mouthSmileRight", "browInnerUp")
+AXIS_SNAP = 15.0  # degrees: a face this near an axis faces along it (the sample's parts are never quite symmetric)
+
+
+def head_bone(scene) -> int | None:
+    """The avatar's head bone (a node index): VRM 1.0's or 0.x's humanoid ``head``, else the first
+    skin joint whose name is a head's (:data:`HEAD_BONE_NAMES`, any case: VRoid's ``Head`` or
+    ``J_Bip_C_Head``, Ready Player Me's and Mixamo's ``Head``); None when there is none, or when
+    it is given by a matrix (glTF animates only a node's translation, rotation and scale)."""
+    gltf = scene._json
+    nodes = gltf.get("nodes", [])
+    ext = gltf.get("extensions") or {}
+    found = None
+    try:
+        found = ext["VRMC_vrm"]["humanoid"]["humanBones"]["head"]["node"]
+    except (KeyError, TypeError):
+        bones = ((ext.get("VRM") or {}).get("humanoid") or {}).get("humanBones") if isinstance(ext.get("VRM"), dict) else None
+        if isinstance(bones, list):
+            found = next((b.get("node") for b in bones if isinstance(b, dict) and b.get("bone") == "head"), None)
+    if found is None:
+        joints = sorted({j for skin in gltf.get("skins", []) for j in skin.get("joints", []) if type(j) is int})
+        found = next((j for j in joints if 0 <= j < len(nodes)
+                      and str(nodes[j].get("name", "")).strip().lower() in HEAD_BONE_NAMES), None)
+    if type(found) is not int or not 0 <= found < len(nodes) or "matrix" in nodes[found]:
+        return None
+    return found
+
+
+def face_axes(scene, bone: int) -> np.ndarray:
+    """(3, 3) rows: the avatar's left, up and forward in world space. Up is glTF's +Y; forward is
+    the level direction from the head bone to the parts of the face its ARKit targets move (so a
+    VRM 0.x avatar, which faces -Z, and one facing +Z both nod forward), the axis it is within
+    :data:`AXIS_SNAP` of; +Z when that is unclear."""
+    from faceanim.standards.arkit import name_key
+
+    centre = scene._globals[bone][:3, 3]
+    moved = []
+    for mi in arkit_targets(scene):
+        names = [n for n in dict.fromkeys(scene._target_names(mi))
+                 if name_key(n) in {name_key(k) for k in FACING_SAMPLE}]
+        if not names:
+            continue
+        deltas = scene.targets(mi, names)
+        hit = np.any([np.linalg.norm(d, axis=1) > 1e-6 for d in deltas.values()], axis=0)
+        moved.append(scene._world_positions(mi)[hit])
+    forward = np.array([0.0, 0.0, 1.0])
+    if moved and sum(len(m) for m in moved):
+        ahead = np.concatenate(moved).mean(axis=0) - centre
+        ahead[1] = 0.0
+        if np.linalg.norm(ahead) > 1e-3:
+            forward = ahead / np.linalg.norm(ahead)
+            k = int(np.argmax(np.abs(forward)))
+            if abs(forward[k]) > np.cos(np.radians(AXIS_SNAP)):  # modelled facing an axis: that axis
+                forward = np.sign(forward[k]) * np.eye(3)[k]
+    up = np.array([0.0, 1.0, 0.0])
+    return np.stack([np.cross(up, forward), up, forward])
+
+
+def head_track(scene, bone: int, angles: np.ndarray) -> np.ndarray:
+    """(F, 4) quaternions (x, y, z, w) of ``bone``'s local rotation that turn the head by ``angles``
+    ((F, 3) yaw, pitch, roll in radians, faceanim's signs: :func:`~faceanim.export.head_rotations`)
+    about its own pivot, in the avatar's frame (:func:`face_axes`), from its rest pose."""
+    from scipy.spatial.transform import Rotation
+
+    from faceanim.export import head_rotations
+
+    nodes = scene._json["nodes"]
+    parent = next((n for n, node in enumerate(nodes) if bone in node.get("children", [])), None)
+    above = scene._globals[parent][:3, :3] if parent is not None else np.eye(3)
+    u, _, vt = np.linalg.svd(above)  # its rotation (a parent's scale does not turn the head)
+    p = u @ vt
+    rest = Rotation.from_quat(nodes[bone]["rotation"]).as_matrix() if "rotation" in nodes[bone] else np.eye(3)
+    turn = head_rotations(angles, face_axes(scene, bone))  # (F, 3, 3) in world space
+    local = np.einsum("ji,fjk,kl,lm->fim", p, turn, p, rest)  # P^T D P R
+    q = Rotation.from_matrix(local).as_quat()
+    q[np.cumsum(np.r_[False, np.einsum("fi,fi->f", q[1:], q[:-1]) < 0]) % 2 == 1] *= -1  # no flips between keys
+    return q
 
 
 def arkit_targets(scene) -> dict[int, dict[int, int]]:
@@ -252,12 +334,14 @@ def arkit_targets(scene) -> dict[int, dict[int, int]]:
 
 
 def play_on_avatar(source, output, curves: np.ndarray, fps: float, name: str = "take",
-                   extras: dict | None = None) -> AvatarPlay:
+                   extras: dict | None = None, head: np.ndarray | None = None) -> AvatarPlay:
     """The avatar file ``source`` written to ``output`` as it was (meshes, skins, materials, its own
     targets and animations, edits made in Blender), with one more animation, ``name``: ``curves``
     (F, 52, Live Link Face order, clamped to 0..1) played onto its own morph targets by their ARKit
-    names, at ``fps``; its other targets stay at 0; ``extras`` are merged into the scene's (a sound
-    beside it: ``{"audio": "x.wav"}``). Refused when no target carries an ARKit name."""
+    names, at ``fps``; its other targets stay at 0; ``head`` ((F, 3) yaw, pitch, roll, radians) turns
+    its head bone (:func:`head_bone`, :func:`head_track`) when it has one; ``extras`` are merged into
+    the scene's (a sound beside it: ``{"audio": "x.wav"}``). Refused when no target carries an ARKit
+    name."""
     from faceanim.standards.arkit import ARKIT_NAMES
     from faceanim.io.scene import read_scene, write_scene
 
@@ -280,7 +364,15 @@ def play_on_avatar(source, output, curves: np.ndarray, fps: float, name: str = "
         if doc.scenes:
             target = doc.scenes[doc.scene or 0]
             target.extras = {**(target.extras if isinstance(target.extras, dict) else {}), **extras}
-    write_scene(scene, output, {}, animation={"name": name, "times": np.arange(len(w)) / float(fps),
-                                              "weights": weights})
-    return AvatarPlay(driven, len(w))
+    animation = {"name": name, "times": np.arange(len(w)) / float(fps), "weights": weights}
+    bone = None
+    if head is not None:
+        angles = np.asarray(head, dtype=np.float64)
+        if angles.shape != (len(w), 3) or not np.isfinite(angles).all():
+            raise FaceAnimError(f"the head's angles need ({len(w)}, 3) finite values, one row per frame")
+        bone = head_bone(scene)
+        if bone is not None:
+            animation["rotations"] = {bone: head_track(scene, bone, angles)}
+    write_scene(scene, output, {}, animation=animation)
+    return AvatarPlay(driven, len(w), None if bone is None else str(scene._json["nodes"][bone].get("name", bone)))
 

@@ -300,13 +300,17 @@ def own_targets(args, suffix: str) -> bool:
     return own
 
 
-def play_own(args, out: Path, curves, fps: float, name: str, extras: dict | None = None) -> Path:
-    """Play ``curves`` (F, 52, Live Link order) onto the --face avatar's own targets into ``out``."""
+def play_own(args, out: Path, curves, fps: float, name: str, extras: dict | None = None, head=None) -> Path:
+    """Play ``curves`` (F, 52, Live Link order) onto the --face avatar's own targets into ``out``,
+    and ``head`` ((F, 3) yaw, pitch, roll, radians) onto its head bone if it has one."""
     from faceanim.avatar import play_on_avatar
 
-    played = play_on_avatar(args.face, out, curves, fps, name, extras)
+    played = play_on_avatar(args.face, out, curves, fps, name, extras, head=head)
     for mesh, names in played.driven.items():
         print(f"{len(names)} ARKit curves onto the avatar's own targets of mesh '{shown(mesh, 60)}'")
+    if head is not None:
+        print(f"the head's motion onto its bone '{shown(played.head_bone, 60)}'" if played.head_bone else
+              "no head bone found (a VRM humanoid's head or a joint named Head): the head stays still")
     return out
 
 

@@ -114,11 +114,11 @@ def _say_own(args, face, phones, wav) -> tuple[list[Path], int, float]:
     from faceanim.standards.arkit import APPLE_NAMES
 
     names = list(APPLE_NAMES)
-    curves, _, _ = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps,
-                                args.expression, args.intensity)
+    curves, head, _ = with_prosody(lipsync_curves(phones, names, args.fps), names, *read_audio(wav), args.fps,
+                                   args.expression, args.intensity)
     out = Path(args.output)
     companion = sound_companion(out)
-    play_own(args, out, curves, args.fps, out.stem, {"audio": companion.name, "fps": args.fps})
+    play_own(args, out, curves, args.fps, out.stem, {"audio": companion.name, "fps": args.fps}, head=head)
     return sound_beside(out, companion, *read_audio(wav)), len(curves), args.fps
 
 

@@ -183,9 +183,11 @@ def _cmd_perform(args) -> None:
     perf, how = performance_of(tr, args, db)
     print(f"tracked {int(tr.tracked.sum())} of {tr.n_frames} frames at {tr.fps:g} fps; {how}")
     if own:
+        import numpy as np
+
         from faceanim.perform import arkit_curves
 
-        report([play_own(args, out, arkit_curves(perf, db), perf.fps, "performance")])
+        report([play_own(args, out, arkit_curves(perf, db), perf.fps, "performance", head=np.radians(perf.pose[:, :3]))])
         return
     with progress(perf.n_frames if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:
         written = write_performance(out, perf, db, face, args.video, args.size, bar, bases=args.bases)
@@ -255,7 +257,8 @@ def _cmd_arkit_play(args) -> None:
         check_video(n, args.size, args.size)
     if own_targets(args, suffix):
         print(f"{n} frames ({take.duration:.1f} s) of the take at {args.fps:g} fps")
-        report([play_own(args, out, take.resample(args.fps).weights, args.fps, "take")])
+        played = take.resample(args.fps)
+        report([play_own(args, out, played.weights, args.fps, "take", head=played.head)])
         return
     face = load_face(args) if WRITERS[suffix].shows_face else None
     with progress(n if suffix == ".mp4" else 0, "rendering", args.quiet or suffix != ".mp4") as bar:

@@ -819,6 +819,12 @@ class _Appender:
         return self._accessor(g.Accessor(bufferView=view, componentType=g.FLOAT, count=len(d), type=g.VEC3,
                                          **bounds))
 
+    def quaternions(self, values: np.ndarray) -> int:
+        """(F, 4) float32 quaternions (x, y, z, w): a rotation channel's output."""
+        v = np.ascontiguousarray(values, dtype=np.float32)
+        view = self._view(v.tobytes())
+        return self._accessor(g.Accessor(bufferView=view, componentType=g.FLOAT, count=len(v), type=g.VEC4))
+
     def scalars(self, values: np.ndarray, bounds: bool = False) -> int:
         """Float32 scalars; with ``bounds``, their min and max (an animation's key times need them)."""
         v = np.ascontiguousarray(values, dtype=np.float32)
@@ -836,7 +842,9 @@ def write_scene(scene: Scene, path: str | os.PathLike, additions: Mapping, repla
 
     ``animation``: a new animation to add, ``{"name": str, "times": (F,) seconds, "weights": {mesh
     index: (F, n) weights of that mesh's n targets (after the additions)}}``: one linear sampler per
-    mesh, one ``weights`` channel per node that shows the mesh."""
+    mesh, one ``weights`` channel per node that shows the mesh; and ``"rotations": {node index: (F,
+    4) unit quaternions (x, y, z, w)}``, that node's local rotation (a node with a ``matrix`` cannot
+    be animated: refused)."""
     path = Path(path)
     if path.suffix.lower() not in SCENE_SUFFIXES:
         raise MeshError(f"cannot write avatar '{shown(path, 80, tail=True)}': use the .glb or .vrm suffix")
@@ -973,6 +981,16 @@ def _add_animation(scene: Scene, doc: g.GLTF2, out: _Appender, animation: dict) 
         for node in scene._users(mi):
             channels.append(g.AnimationChannel(sampler=len(samplers) - 1,
                                                target=g.AnimationChannelTarget(node=node, path="weights")))
+    nodes = scene._json.get("nodes", [])
+    for node, q in sorted(animation.get("rotations", {}).items()):
+        if not _is_int(node) or not 0 <= node < len(nodes) or "matrix" in nodes[node]:
+            raise MeshError(f"the animation's rotation channel needs a node without a matrix, got node {shown(node)}")
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (len(times), 4) or not np.isfinite(q).all() or np.abs(np.linalg.norm(q, axis=1) - 1).max() > 1e-3:
+            raise MeshError(f"the rotation of node {node} needs ({len(times)}, 4) unit quaternions")
+        samplers.append(g.AnimationSampler(input=time_acc, output=out.quaternions(q), interpolation="LINEAR"))
+        channels.append(g.AnimationChannel(sampler=len(samplers) - 1,
+                                           target=g.AnimationChannelTarget(node=int(node), path="rotation")))
     if not channels:
         raise MeshError("the animation drives no mesh shown by a node")
     doc.animations = list(doc.animations or []) + [g.Animation(name=str(animation.get("name", "animation")),
