@@ -42,12 +42,22 @@ def _name(path) -> str:
     return shown(path, PATH_SHOWN, tail=True)
 
 
+def quiet_ffmpeg_remarks() -> None:
+    """imageio-ffmpeg logs its own remarks on how ffmpeg ended ("We had to kill ffmpeg to stop it"
+    when a Ctrl-C closes a reader or a writer): faceanim tells how a run ended, in one line."""
+    import logging
+
+    logging.getLogger("imageio_ffmpeg").setLevel(logging.ERROR)
+
+
 def _reader(path: Path, fps: float | None = None):
     """imageio-ffmpeg's frame reader and the video's metadata; with ``fps``, frames at that constant
     rate (a variable-frame-rate clip, as phones record, is resampled: frame k is at k / fps)."""
     import imageio_ffmpeg
 
     from faceanim.io.files import native_stderr_quiet
+
+    quiet_ffmpeg_remarks()
 
     with native_stderr_quiet():
         gen = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24",

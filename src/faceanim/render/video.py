@@ -91,13 +91,11 @@ def write_video(path: str | os.PathLike, frames, fps: float = 25.0, progress=Non
     ``QUEUE_FRAMES`` wait for the pipe), and ffmpeg encodes in its own process while the next
     frames are rendered.
     """
-    import logging
-
     import imageio_ffmpeg
 
-    # imageio-ffmpeg logs its own remarks on how ffmpeg ended ("We had to kill ffmpeg to stop it"
-    # after a Ctrl-C); how the encode ended is told here, in one line
-    logging.getLogger("imageio_ffmpeg").setLevel(logging.ERROR)
+    from faceanim.io.video import quiet_ffmpeg_remarks
+
+    quiet_ffmpeg_remarks()  # how the encode ended is told here, in one line
     fps = check_fps(fps, "the frame rate")
     if audio is not None:
         from faceanim.io.audio import read_audio
