@@ -514,3 +514,35 @@ def test_vrm0_passes_the_khronos_validator_but_for_its_extension_name(avatar0):
     assert report["numErrors"] == 0 and report["numWarnings"] == 1
     assert [m for m in report["messages"] if m.startswith("1 ")] == [
         "1 INVALID_EXTENSION_NAME_FORMAT /extensionsUsed/0 Extension name has invalid format."]
+
+
+def test_a_nod_turns_the_humanoid_head_forward_in_vrm1_and_vrm0(avatar, avatar0, tmp_path):
+    """play_on_avatar's head motion on VRM 1.0 (facing +Z) and VRM 0.x (facing -Z) of the same head:
+    the humanoid's head bone is the one turned, the forward found from the face is +Z and -Z, and a
+    nod down of 0.3 rad takes the eyes down (skinned by the spec's joint matrices) by the same
+    amount in both."""
+    from test_arkit_play import _posed_eyes
+
+    from faceanim.avatar import face_axes, head_bone, play_on_avatar
+    from faceanim.io.scene import read_scene
+    from faceanim.standards.arkit import ARKIT_NAMES
+
+    head = np.zeros((2, 3))
+    head[1, 1] = 0.3
+    drops = []
+    for path, forward in ((avatar[0], 1.0), (avatar0[0], -1.0)):
+        scene = read_scene(path)
+        bone = head_bone(scene)
+        ext = scene._json["extensions"]
+        vrm_head = ext["VRMC_vrm"]["humanoid"]["humanBones"]["head"]["node"] if "VRMC_vrm" in ext else \
+            next(b["node"] for b in ext["VRM"]["humanoid"]["humanBones"] if b["bone"] == "head")
+        assert bone == vrm_head
+        np.testing.assert_allclose(face_axes(scene, bone)[2], [0.0, 0.0, forward], atol=1e-9)
+        out = tmp_path / f"nod{path.suffix}{forward:+.0f}.vrm"
+        played = play_on_avatar(path, out, np.zeros((2, len(ARKIT_NAMES))), 30.0, head=head)
+        assert played.head_bone is not None
+        rest, _, pivot = _posed_eyes(out, 0)
+        down, _, _ = _posed_eyes(out, 1)
+        assert down[1] < rest[1] - 1e-3
+        drops.append(rest[1] - down[1])
+    assert drops[0] == pytest.approx(drops[1], rel=1e-3)

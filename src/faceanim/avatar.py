@@ -252,12 +252,14 @@ def head_bone(scene) -> int | None:
     nodes = gltf.get("nodes", [])
     ext = gltf.get("extensions") or {}
     found = None
-    try:
+    try:  # VRM 1.0: {"head": {"node": N}}; VRM 0.x: [{"bone": "head", "node": N}, ...]
         found = ext["VRMC_vrm"]["humanoid"]["humanBones"]["head"]["node"]
     except (KeyError, TypeError):
-        bones = ((ext.get("VRM") or {}).get("humanoid") or {}).get("humanBones") if isinstance(ext.get("VRM"), dict) else None
-        if isinstance(bones, list):
-            found = next((b.get("node") for b in bones if isinstance(b, dict) and b.get("bone") == "head"), None)
+        try:
+            found = next((b.get("node") for b in ext["VRM"]["humanoid"]["humanBones"]
+                          if isinstance(b, dict) and b.get("bone") == "head"), None)
+        except (KeyError, TypeError):
+            pass
     if found is None:
         joints = sorted({j for skin in gltf.get("skins", []) for j in skin.get("joints", []) if type(j) is int})
         found = next((j for j in joints if 0 <= j < len(nodes)
@@ -275,10 +277,10 @@ def face_axes(scene, bone: int) -> np.ndarray:
     from faceanim.standards.arkit import name_key
 
     centre = scene._globals[bone][:3, 3]
+    sample = {name_key(k) for k in FACING_SAMPLE}
     moved = []
     for mi in arkit_targets(scene):
-        names = [n for n in dict.fromkeys(scene._target_names(mi))
-                 if name_key(n) in {name_key(k) for k in FACING_SAMPLE}]
+        names = [n for n in dict.fromkeys(scene._target_names(mi)) if name_key(n) in sample]
         if not names:
             continue
         deltas = scene.targets(mi, names)
