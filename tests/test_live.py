@@ -433,13 +433,17 @@ def test_viewer_page_moves_the_default_face_live(browser):
 @pytest.mark.skipif(not AVATAR.exists(), reason="needs ../shared/data/avatars/vroid-sample.glb")
 def test_viewer_page_moves_a_whole_avatar_by_its_arkit_names(browser):
     """The VRoid avatar (a skinned, multi-mesh glb exported from VRoid) has ARKit-named targets on its
-    face mesh: they move with the clip."""
+    face mesh: they move with the clip; the performer's head turns its Head bone (not the whole
+    body)."""
     proc, page = _live_page(browser, ["--video", CLIPS / "d18.mp4", "--face", AVATAR])
     try:
         page.wait_for_function("faceanimLive.messages > 20", timeout=60_000)
         assert page.evaluate("faceanimLive.matched") >= 50
+        assert page.evaluate("faceanimLive.turned") == "Head"
+        page.evaluate("window.__turns = []; viewer.onFrame.push(() => __turns.push(faceanimLive.headTurn))")
         jaw = _watch(page, "jawOpen", 30.0)
         assert max(jaw) > 0.2
+        assert max(page.evaluate("__turns")) > 0.02  # the Head bone turned from its rest
     finally:
         page.close()
         code = _finish(proc)

@@ -731,7 +731,24 @@ function startLive(spec) {
   live.matched = targets.filter((t) => t).length;
   const box = new THREE.Box3().setFromObject(root);
   const pivot = box.getCenter(new THREE.Vector3());
-  const headBone = vrm && vrm.humanoid && vrm.humanoid.getNormalizedBoneNode('head');
+  // the head bone: a VRM's normalised humanoid head (its rest is the identity, its axes the
+  // model's), else a bone named as a head's (as faceanim.avatar.head_bone): turned in the model's
+  // axes through its parents' rotations from its rest; with neither, the whole model turns
+  const headNames = ['head', 'j_bip_c_head', 'mixamorig:head', 'bip01 head', 'bip001 head', 'cc_base_head'];
+  let headBone = vrm && vrm.humanoid && vrm.humanoid.getNormalizedBoneNode('head');
+  let above = null;
+  let rest = null;
+  if (!headBone) {
+    root.traverse((o) => { if (!headBone && o.isBone && headNames.includes(o.name.trim().toLowerCase())) headBone = o; });
+    if (headBone) {
+      above = headBone.parent ? headBone.parent.getWorldQuaternion(new THREE.Quaternion()) : new THREE.Quaternion();
+      rest = headBone.quaternion.clone();
+    }
+  }
+  live.turned = headBone ? headBone.name || 'head' : 'model';
+  const restWorld = headBone ? headBone.getWorldQuaternion(new THREE.Quaternion()) : null;
+  const nowWorld = new THREE.Quaternion();
+  live.headTurn = 0;  // radians the head bone's world rotation is from its rest (what tests read)
   const euler = new THREE.Euler(0, 0, 0, 'YXZ');
   const q = new THREE.Quaternion();
   const ws = new WebSocket(spec.url);
@@ -750,8 +767,13 @@ function startLive(spec) {
     for (let k = 0; k < targets.length; k += 1) if (targets[k]) setWeight(targets[k], m.w[k]);
     euler.set(m.h[1], m.h[0], m.h[2], 'YXZ');  // pitch about x, yaw about y, roll about z
     q.setFromEuler(euler);
-    if (headBone) {
+    if (headBone && rest) {
+      headBone.quaternion.copy(above).invert().multiply(q).multiply(above).multiply(rest);  // P^-1 D P R
+    } else if (headBone) {
       headBone.quaternion.copy(q);
+    }
+    if (headBone) {
+      live.headTurn = headBone.getWorldQuaternion(nowWorld).angleTo(restWorld);
     } else {
       root.quaternion.copy(q);
       root.position.copy(pivot).sub(pivot.clone().applyQuaternion(q));
