@@ -112,7 +112,10 @@ class ViewerSink(Sink):
             raise
         ws_port = self.ws.socket.getsockname()[1]
         self.http.viewer = Viewer(model)
-        self.http.viewer.live = {"url": f"ws://{HOST}:{ws_port}/", "names": list(APPLE_NAMES)}
+        from faceanim.avatar import HEAD_BONE_NAMES
+
+        self.http.viewer.live = {"url": f"ws://{HOST}:{ws_port}/", "names": list(APPLE_NAMES),
+                                 "headBones": list(HEAD_BONE_NAMES)}  # the page turns the same bone as the files
         self.url = self.http.url
         self.label = f"viewer {self.url}"
         port = self.http.server_address[1]

@@ -732,9 +732,9 @@ function startLive(spec) {
   const box = new THREE.Box3().setFromObject(root);
   const pivot = box.getCenter(new THREE.Vector3());
   // the head bone: a VRM's normalised humanoid head (its rest is the identity, its axes the
-  // model's), else a bone named as a head's (as faceanim.avatar.head_bone): turned in the model's
-  // axes through its parents' rotations from its rest; with neither, the whole model turns
-  const headNames = ['head', 'j_bip_c_head', 'mixamorig:head', 'bip01 head', 'bip001 head', 'cc_base_head'];
+  // model's), else a bone named as a head's (the server's faceanim.avatar.HEAD_BONE_NAMES): turned
+  // in the model's axes through its parents' rotations from its rest; with neither, the model turns
+  const headNames = spec.headBones || [];
   let headBone = vrm && vrm.humanoid && vrm.humanoid.getNormalizedBoneNode('head');
   let above = null;
   let rest = null;
