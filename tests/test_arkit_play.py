@@ -324,6 +324,7 @@ def test_the_takes_head_turns_a_vroid_avatars_head_bone(tmp_path):
     not sideways; a turn to the avatar's left takes both eyes towards its left eye's side; a tilt
     to its right puts its right eye lower than its left."""
     from faceanim.io.arkit_csv import write_arkit_csv
+    from faceanim.io.scene import read_scene
     from faceanim.standards.arkit import ARKIT_NAMES
 
     head = np.zeros((4, 3))
@@ -332,8 +333,6 @@ def test_the_takes_head_turns_a_vroid_avatars_head_bone(tmp_path):
     out = tmp_path / "vroid.glb"
     assert run(["arkit", "play", tmp_path / "take.csv", "--face", VROID, "--fps", "30", "-o", out]) == 0
     rest_l, rest_r, pivot = _posed_eyes(out, 0)
-    from faceanim.io.scene import read_scene
-
     bind = read_scene(VROID)
     mi = next(m.index for m in bind.meshes() if "eyeBlinkLeft" in m.target_names)
     blink = bind.targets(mi, ["eyeBlinkLeft"])["eyeBlinkLeft"]
@@ -358,6 +357,8 @@ def test_the_takes_head_turns_a_vroid_avatars_head_bone(tmp_path):
 def test_a_rotation_channel_is_refused_on_a_node_it_cannot_turn(tmp_path):
     """write_scene's rotation channels: a node that is not there, quaternions that are not unit or
     not one per key: refused, one line, nothing written; the avatar's head bone is VRoid's Head."""
+    import re
+
     from faceanim.avatar import head_bone
     from faceanim.errors import MeshError
     from faceanim.io.scene import read_scene, write_scene
@@ -368,7 +369,7 @@ def test_a_rotation_channel_is_refused_on_a_node_it_cannot_turn(tmp_path):
     unit = np.tile([0.0, 0.0, 0.0, 1.0], (3, 1))
     for rotations, phrase in (({10_000: unit}, "node"), ({bone: 2 * unit}, "unit"), ({bone: unit[:2]}, "(3, 4)"),
                               ({bone: np.full((3, 4), np.nan)}, "unit")):
-        with pytest.raises(MeshError, match=phrase.replace("(", r"\(").replace(")", r"\)")):
+        with pytest.raises(MeshError, match=re.escape(phrase)):
             write_scene(scene, tmp_path / "x.glb", {}, animation={"times": np.arange(3) / 30.0, "weights": {},
                                                                   "rotations": rotations})
     assert not (tmp_path / "x.glb").exists()
