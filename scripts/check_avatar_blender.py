@@ -6,7 +6,7 @@ Runs under a Python that has Blender's module ``bpy`` (``.venv-blender``, see
 ``scripts/check_blender.py``)::
 
     .venv-blender/bin/python scripts/check_avatar_blender.py RIGGED.glb --mesh Face \\
-        --keys eyeBlinkLeft,jawOpen [--json report.json]
+        --keys eyeBlinkLeft,jawOpen [--head-bone Head] [--json report.json]
 
 An empty scene, Blender's own glTF importer (default options), then, reported as JSON:
 
@@ -17,7 +17,11 @@ An empty scene, Blender's own glTF importer (default options), then, reported as
   poses with its skeleton);
 - ``keys``: each asked shape key set to 1 alone: the largest distance the evaluated vertices move
   (in Blender's world units), and the same key's largest displacement as stored in the shape key
-  data (what the file's morph target became).
+  data (what the file's morph target became);
+- ``head_keys`` (with ``--head-bone NAME``): at each key of that bone's imported rotation
+  (Blender's action, evaluated at the key's frame): the bone's pivot and the centroids of the
+  ``--mesh`` object's evaluated vertices that its ``eyeBlinkLeft`` and ``eyeBlinkRight`` keys
+  move (the eyes, as Blender's armature poses them), in Blender's world (Z up).
 
 Exit code 0 when the file imports, 2 when it cannot be read.
 """
@@ -44,6 +48,48 @@ def evaluated(obj, depsgraph) -> np.ndarray:
     return co @ world[:3, :3].T + world[:3, 3]
 
 
+def head_keys(bpy, head, bone: str) -> list[dict]:
+    """The eyes and the pivot at each key of ``bone``'s rotation (module docstring)."""
+    arm = next((m.object for m in head.modifiers if m.type == "ARMATURE" and m.object is not None), None)
+    if arm is None or arm.animation_data is None or arm.animation_data.action is None:
+        return []
+    action = arm.animation_data.action
+    path = f'pose.bones["{bone}"].rotation_quaternion'
+    curves = [c for c in _fcurves(action) if c.data_path == path]
+    if not curves:
+        return []
+    frames = sorted({k.co[0] for c in curves for k in c.keyframe_points})
+    blocks = head.data.shape_keys.key_blocks
+    basis = np.empty(len(head.data.vertices) * 3)
+    head.data.shape_keys.reference_key.data.foreach_get("co", basis)
+    eyes = {}
+    for side in ("eyeBlinkLeft", "eyeBlinkRight"):
+        co = np.empty(basis.size)
+        blocks[side].data.foreach_get("co", co)
+        eyes[side] = np.linalg.norm((co - basis).reshape(-1, 3), axis=1) > 1e-6
+    out = []
+    scene = bpy.context.scene
+    for f in frames:
+        scene.frame_set(int(math.floor(f)), subframe=float(f - math.floor(f)))
+        world = evaluated(head, bpy.context.evaluated_depsgraph_get())
+        pivot = arm.matrix_world @ arm.pose.bones[bone].head
+        out.append({"frame": float(f), "pivot": [float(x) for x in pivot],
+                    **{side: world[mask].mean(axis=0).tolist() for side, mask in eyes.items()}})
+    return out
+
+
+def _fcurves(action):
+    """An action's F-curves (Blender 4.4+ keeps them in layers, strips and channel bags)."""
+    if hasattr(action, "fcurves") and len(action.fcurves):
+        return list(action.fcurves)
+    out = []
+    for layer in getattr(action, "layers", []):
+        for strip in layer.strips:
+            for bag in getattr(strip, "channelbags", []):
+                out.extend(bag.fcurves)
+    return out
+
+
 def main(argv=None) -> int:
     import bpy
 
@@ -52,6 +98,7 @@ def main(argv=None) -> int:
     ap.add_argument("--mesh", required=True, help="the head mesh's name in the file")
     ap.add_argument("--keys", default="", help="comma-separated shape keys to try")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--head-bone", help="report the eyes at each key of this bone's rotation")
     args = ap.parse_args(argv)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     try:
@@ -75,6 +122,8 @@ def main(argv=None) -> int:
         print(f"no mesh named {args.mesh} in {args.glb}", file=sys.stderr)
         return 2
     report["head_object"] = head.name
+    if args.head_bone:
+        report["head_keys"] = head_keys(bpy, head, args.head_bone)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     rest = evaluated(head, depsgraph)
     arm = next((m.object for m in head.modifiers if m.type == "ARMATURE" and m.object is not None), None)

@@ -272,3 +272,38 @@ def test_a_rigged_avatar_still_poses_and_each_new_key_moves_in_blender(blender, 
         r = after["keys"][name]
         assert r is not None, name
         assert r["stored"] > 1e-3 and r["moved"] == pytest.approx(r["stored"], abs=1e-6), name
+
+
+@pytest.mark.skipif(not AVATAR.is_file(), reason="../shared/data/avatars/vroid-sample.glb is not here")
+def test_a_takes_head_turns_the_avatars_head_bone_in_blender(blender, tmp_path):
+    """``arkit play --face`` the VRoid avatar with a take that nods down, turns to the avatar's left
+    and tilts to its right by 0.3 rad each: Blender's importer puts the head's turn on the Head
+    bone's action, and its armature, at each key, takes the eyes (the vertices the eyeBlink keys
+    move) 0.3 rad about the bone's pivot downward (Blender's Z), towards the left eye's side, and
+    the right eye under the left."""
+    from faceanim.cli import main
+    from faceanim.io.arkit_csv import write_arkit_csv
+    from faceanim.standards.arkit import ARKIT_NAMES
+
+    head = np.zeros((4, 3))
+    head[1, 1], head[2, 0], head[3, 2] = 0.3, 0.3, 0.3
+    write_arkit_csv(tmp_path / "take.csv", np.zeros((4, len(ARKIT_NAMES))), 30.0, head)
+    glb = tmp_path / "turned.glb"
+    assert main(["arkit", "play", str(tmp_path / "take.csv"), "--face", str(AVATAR), "--fps", "30", "-o", str(glb)]) in (0, None)
+    out = tmp_path / "turned.json"
+    run = subprocess.run([blender, str(AVATAR_SCRIPT), str(glb), "--mesh", "Face (merged)(Clone)", "--head-bone", "Head",
+                          "--json", str(out)], check=False, capture_output=True, text=True, timeout=900)
+    assert run.returncode == 0, run.stdout + run.stderr
+    keys = json.loads(out.read_text())["head_keys"]
+    assert len(keys) == 4
+    eyes = [(np.array(k["eyeBlinkLeft"]), np.array(k["eyeBlinkRight"]), np.array(k["pivot"])) for k in keys]
+    left0, right0, pivot = eyes[0]
+    mid = 0.5 * (left0 + right0) - pivot
+    side = left0 - right0
+    side[2] = 0.0
+    side /= np.linalg.norm(side)
+    nod = 0.5 * (eyes[1][0] + eyes[1][1]) - pivot
+    angle = np.arccos(np.clip(nod @ mid / np.linalg.norm(nod) / np.linalg.norm(mid), -1, 1))
+    assert angle == pytest.approx(0.3, abs=0.01) and nod[2] < mid[2] - 0.01 and abs((nod - mid) @ side) < 1e-3
+    assert (0.5 * (eyes[2][0] + eyes[2][1]) - pivot - mid) @ side > 0.01
+    assert eyes[3][1][2] < eyes[3][0][2] - 0.01

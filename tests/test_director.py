@@ -68,9 +68,11 @@ def test_speech_carries_its_voices_prosody_and_emotion_phrase_by_phrase(tmp_path
     [(at, wav)] = scene.speech
     prosody = analyse(*read_audio(wav))
     expected = prosody_actions(prosody, 1.0)
-    voice = [a for a in scene.actions if a.name in ("brow raise", "blink", "look away", "nod", "lean")]
+    kinds = ("brow raise", "blink", "look away", "nod", "lean", "head rise")
+    voice = [a for a in scene.actions if a.name in kinds]
     assert [(a.name, round(a.start, 6)) for a in voice] == [(a.name, round(a.start, 6)) for a in expected]
     assert any(a.name == "nod" for a in voice) and any(a.name == "lean" for a in voice)
+    assert any(a.name == "head rise" and a.additive for a in voice)
     joy = [a for a in scene.actions if a.name == "joy"]
     assert len(joy) == len(phrases(prosody)) >= 2
     levels = np.array([a.intensity for a in joy])
@@ -79,7 +81,7 @@ def test_speech_carries_its_voices_prosody_and_emotion_phrase_by_phrase(tmp_path
     assert joy[0].start >= 1.0 and all(b.start < a.end for a, b in zip(joy, joy[1:]))  # no gap between phrases
     still = build_scene(load_script(_script(tmp_path, {"events": [{"say": words, "prosody": False}]}, "b.json")),
                         0.0, tmp_path)
-    assert not [a for a in still.actions if a.name in ("brow raise", "blink", "look away", "nod", "lean")]
+    assert not [a for a in still.actions if a.name in kinds]
 
 
 @pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="espeak-ng is not installed (scripts/setup.sh installs it)")

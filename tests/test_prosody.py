@@ -158,7 +158,8 @@ def test_an_emotion_is_stronger_in_the_livelier_louder_phrase():
 def test_the_fap_actions_move_the_face_when_the_curves_do():
     """prosody_actions (the director's and .fap's) against prosody_curves/prosody_head of the same
     sound: the eyebrow raise peaks at the accent, the eyelids shut at the blink, head_pitch nods
-    down at the phrase's last accent, head_roll leans one way then the other."""
+    down at the phrase's last accent and rises with the pitch as the curve does (within 0.5 mrad),
+    head_roll leans one way then the other."""
     from faceanim.drivers.mpeg4 import blend_actions
     from faceanim.drivers.speech.prosody import prosody_actions, prosody_head
     from faceanim.standards.mpeg4 import fap
@@ -190,6 +191,8 @@ def test_the_fap_actions_move_the_face_when_the_curves_do():
     for at, _ in p.accents:
         w = slice(int(at * fps), int((at + 0.6) * fps))
         assert abs(np.argmax(nod[w]) - np.argmax(head[w, 1])) <= 3 and nod[w].max() > 0.04
+    # the nods with the slow rise with the pitch (an additive layer) are the curve's head pitch
+    np.testing.assert_allclose(nod, head[:, 1], atol=5e-4)
     roll = col("head_roll")
     assert roll[int(0.9 * fps)] * roll[int(2.5 * fps)] < 0
     assert np.sign(roll[int(0.9 * fps)]) == np.sign(head[int(0.9 * fps), 2])

@@ -29,6 +29,23 @@ def test_single_action_follows_its_envelope():
     np.testing.assert_allclose(a.envelope_at(np.array([0.3, 0.7, 1.1])), [0.5, 1.0, 0.5], atol=1e-12)
 
 
+def test_an_additive_action_is_added_over_the_blend():
+    """An additive action (a layer: the voice's head rise) is added to the weighted blend of the
+    others where they overlap, is the value alone where it is alone, and linear hats at half their
+    width apart sum to the straight line between their keys."""
+    pitch = fap_set({"head_pitch": 1.0})
+    nod = Action("nod", {k: 1000.0 for k in pitch}, 0.0, 1.0, 1.0, "linear", 0.0, 0.0)
+    other = Action("other", {k: 3000.0 for k in pitch}, 0.0, 1.0, 1.0, "linear", 0.0, 0.0)
+    layer = [Action("rise", {k: v for k in pitch}, at - 0.1, 0.2, 1.0, "linear", 0.5, 0.5, additive=True)
+             for at, v in ((0.5, 100.0), (0.6, 200.0), (0.7, 300.0), (0.8, 400.0))]
+    s = blend_actions([nod, other, *layer], 101, 100.0)
+    col = s.column("head_pitch")
+    assert col[20] == pytest.approx(2000.0)  # the blend alone: the two actions' mean
+    assert col[60] == pytest.approx(2000.0 + 200.0) and col[65] == pytest.approx(2000.0 + 250.0)
+    alone = blend_actions(layer, 101, 100.0).column("head_pitch")
+    np.testing.assert_allclose(alone[50:81], np.linspace(100.0, 400.0, 31), atol=1e-9)
+
+
 def test_blending_is_continuous_and_respects_weights():
     surprise = Action("surprise", {3: 500.0}, 0.0, 2.0, 1.0, "smooth", 0.2, 0.2, weight=0.3)
     b = Action("b", {3: 0.0}, 0.8, 0.3, 1.0, "smooth", 0.4, 0.4, weight=6.0)

@@ -71,6 +71,7 @@ class Action:
     release: float = 0.25  # fraction spent falling
     weight: float = 1.0
     extra: dict = field(default_factory=dict)
+    additive: bool = False  # added over the weighted blend of the others (a layer), not blended with them
 
     def __post_init__(self):
         if self.envelope not in ENVELOPES:
@@ -104,11 +105,14 @@ class Action:
 
 
 def blend_actions(actions: list[Action], n_frames: int, fps: float, name: str = "faceanim") -> FapStream:
-    """Sample actions to a FAP stream with the paper's weighted blending."""
+    """Sample actions to a FAP stream with the paper's weighted blending; ``additive`` actions (a
+    layer such as the voice's slow head rise) are added over the blend of the others."""
     if n_frames < 1:
         raise FapError("a FAP stream needs at least one frame")
     num = np.zeros((n_frames, N_FAPS))
     den = np.zeros((n_frames, N_FAPS))
+    layer = np.zeros((n_frames, N_FAPS))  # additive actions' sum
+    layered = np.zeros((n_frames, N_FAPS), dtype=bool)
     for a in actions:
         # only the frames inside the action (its envelope is 0 elsewhere): time ~ total action length
         lo = max(0, int(np.floor(a.start * fps)))
@@ -118,11 +122,15 @@ def blend_actions(actions: list[Action], n_frames: int, fps: float, name: str = 
         env = a.envelope_at(np.arange(lo, hi) / fps)
         if not env.any():
             continue
-        w = a.weight * env
         cols = np.array([n - 1 for n in a.faps], dtype=np.int64)
         vals = np.array(list(a.faps.values()), dtype=np.float64)
+        if a.additive:
+            layer[lo:hi, cols] += (a.intensity * env)[:, None] * vals[None]
+            layered[lo:hi, cols] |= (env > 0)[:, None]
+            continue
+        w = a.weight * env
         num[lo:hi, cols] += (w * a.intensity * env)[:, None] * vals[None]
         den[lo:hi, cols] += w[:, None]
-    mask = den > 1e-12
-    values = np.divide(num, den, out=np.zeros_like(num), where=mask)
-    return FapStream(values, mask, fps, name)
+    blended = den > 1e-12
+    values = np.divide(num, den, out=np.zeros_like(num), where=blended) + layer
+    return FapStream(values, blended | layered, fps, name)

@@ -229,22 +229,30 @@ NOD, NOD_DOWN, NOD_UP = 0.05, 0.15, 0.35  # a nod at a phrase's last accent: rad
 TILT = 0.03  # radians the head leans over a phrase, to alternate sides phrase by phrase
 
 
+def head_rise(prosody: Prosody, t: np.ndarray) -> np.ndarray:
+    """The head's pitch (radians, faceanim's sign: negative is up) at times ``t`` from the voice's
+    pitch alone: :data:`HEAD_PER_ST` per semitone over its median, smoothed over
+    :data:`HEAD_SMOOTH`; 0 where nobody speaks (:func:`prosody_head`'s slow rise)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    voiced = np.isfinite(prosody.pitch)
+    if voiced.sum() < 5:
+        return np.zeros(len(t))
+    st = 12.0 * np.log2(prosody.pitch / np.nanmedian(prosody.pitch))
+    st = np.where(voiced & prosody.speaking, st, 0.0)
+    rise = gaussian_filter1d(st, HEAD_SMOOTH / STEP, mode="constant")
+    return -HEAD_PER_ST * np.interp(t, prosody.times, rise, left=0.0, right=0.0)
+
+
 def prosody_head(prosody: Prosody, fps: float, n_frames: int) -> np.ndarray:
     """(n_frames, 3) the head's yaw, pitch, roll in radians (faceanim's signs: pitch nods down,
     roll tilts to the head's right) that ``prosody`` shows, sampled at ``fps`` from 0 s: the head
     rises a little with the voice's pitch over its median (:data:`HEAD_PER_ST`), nods down
     :data:`NOD` at each phrase's last accent (or its end, if it has none), and leans :data:`TILT`
     to one side over each phrase, the other over the next; still where nobody speaks."""
-    from scipy.ndimage import gaussian_filter1d
-
     t = np.arange(int(n_frames)) / float(fps)
     out = np.zeros((len(t), 3))
-    voiced = np.isfinite(prosody.pitch)
-    if voiced.sum() >= 5:
-        st = 12.0 * np.log2(prosody.pitch / np.nanmedian(prosody.pitch))
-        st = np.where(voiced & prosody.speaking, st, 0.0)
-        rise = gaussian_filter1d(st, HEAD_SMOOTH / STEP, mode="constant")
-        out[:, 1] -= HEAD_PER_ST * np.interp(t, prosody.times, rise, left=0.0, right=0.0)
+    out[:, 1] = head_rise(prosody, t)
     for k, (a, b) in enumerate(_runs(prosody.speaking)):
         start, end = a * STEP, b * STEP
         last = [at for at, _ in prosody.accents if start <= at <= end]
@@ -303,14 +311,17 @@ def emotion_intensity(prosody: Prosody, intensity: float, fps: float, n_frames: 
 BROW_FAP = 400.0  # ENS of MPEG-4's eyebrow raises for an ARKit brow weight of 1 (surprise: 250)
 BLINK_FAPS = {"close_t_l_eyelid": 1024, "close_t_r_eyelid": 1024, "close_b_l_eyelid": 150, "close_b_r_eyelid": 150}
 ANGLE_UNIT = 1e-5  # radians per MPEG-4 angle unit (AU): head_pitch, head_roll
+RISE_STEP = 0.05  # seconds between the keys of the head's slow rise as FAP actions
 
 
 def prosody_actions(prosody: Prosody, offset: float = 0.0) -> list:
     """The same brows, blinks, looks away, nods and leans as :func:`prosody_curves` and
     :func:`prosody_head`, as MPEG-4 actions (Lee et al.'s director and ``.fap`` files): the eyebrow
     raises (``raise_*_eyebrow``, :data:`BROW_FAP` per unit of brow), eyelid closures, the eyeballs'
-    yaw and pitch, ``head_pitch`` nods and ``head_roll`` leans, starting ``offset`` seconds into the timeline. The slow rise of the head
-    with the pitch is left out (a stream of actions, not a curve)."""
+    yaw and pitch, ``head_pitch`` nods and ``head_roll`` leans, starting ``offset`` seconds into
+    the timeline; the slow rise of the head with the pitch (:func:`head_rise`) as an additive layer
+    on ``head_pitch``: keys every :data:`RISE_STEP`, each a linear hat over its neighbours' (their
+    sum is the rise interpolated linearly between the keys), added over the nods."""
     from faceanim.drivers.mpeg4 import Action, fap_set
 
     brow_faps = ("raise_l_i_eyebrow", "raise_r_i_eyebrow", "raise_l_m_eyebrow", "raise_r_m_eyebrow",
@@ -345,6 +356,12 @@ def prosody_actions(prosody: Prosody, offset: float = 0.0) -> list:
         lean = TILT if k % 2 == 0 else -TILT
         out.append(Action("lean", fap_set({"head_roll": lean / ANGLE_UNIT}), offset + start,
                           max(end - start, 2 * STEP), 1.0, "smooth", 0.5, 0.5))
+    keys = np.arange(0.0, prosody.duration + RISE_STEP, RISE_STEP)
+    pitch = fap_set({"head_pitch": 1.0})
+    for at, value in zip(keys, head_rise(prosody, keys)):
+        if abs(value) >= ANGLE_UNIT:  # under one unit of the .fap: nothing
+            out.append(Action("head rise", {k: value / ANGLE_UNIT for k in pitch}, offset + at - RISE_STEP,
+                              2 * RISE_STEP, 1.0, "linear", 0.5, 0.5, additive=True))
     return out
 
 
